@@ -1,0 +1,261 @@
+"""Arena physics: tracked (skid-steer) robots driven by motor powers, with sensors.
+
+Frames and units
+----------------
+Arena frame: origin at one mat corner, ``x`` and ``y`` in metres in ``[0, arena_m]``,
+yaw counter-clockwise from +x in radians. Body frame: +x forward, +y left, +z up.
+Time in seconds of simulated time.
+
+Model (per robot, vectorised over robots)
+-----------------------------------------
+* Motor power ``-400..400`` per side (Zumo 32U4 ``setSpeeds`` units). The target tread
+  speed is ``power / 400 * max_speed_mps * gain_side`` with a small static deadband and
+  a per-side gain mismatch (seeded, a few %), so "drive straight" curves slightly.
+* First-order motor lag (time constant 50-100 ms, seeded per robot and side).
+* Skid-steer kinematics: forward speed is the mean tread speed minus a small
+  longitudinal slip; the yaw rate is ``(v_r - v_l) / (track_width * chi)`` with
+  ``chi > 1`` growing with the turn rate (tracks skid sideways when turning), and a
+  small lateral drift on curves. Encoders count tread (sprocket) rotation, so
+  dead-reckoning from encoders over-estimates turns exactly like on the real robot.
+* Process noise (seeded) on tread speeds; walls keep the whole footprint inside the arena
+  (the robot pushes against the wall, the treads keep turning).
+* IMU: accelerometer (gravity + body acceleration), gyro and magnetometer in the body
+  frame with white noise and a constant per-robot bias. Battery voltage drains with work.
+
+Everything is reproducible: same ``seed`` and same sequence of calls give the same output.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Full-scale motor power (Zumo 32U4 ``motors.setSpeeds`` range is -400..400).
+MAX_POWER = 400
+#: Gravity, m/s^2.
+GRAVITY = 9.81
+#: Earth magnetic field in the arena frame (x, y, z), µT: ~20 µT horizontal along +y
+#: ("north"), ~-44 µT vertical (northern mid-latitudes).
+EARTH_FIELD_UT = np.array([0.0, 20.0, -44.0])
+LIGHTING_LEVELS = ("full", "dimmed", "dark")
+
+
+@dataclass
+class RobotSpec:
+    """Static description of one robot (Zumo 32U4 class).
+
+    Attributes:
+        name: robot name (used in keys and truth files).
+        color_rgb: shell colour, 0-255 per channel.
+        marker_id: ArUco id (DICT_4X4_50) printed on the shell top, or None.
+        length_m, width_m: shell footprint, m (length along the body x axis).
+        track_width_m: distance between tread centres, m.
+        sprocket_diameter_m: drive sprocket diameter, m.
+        counts_per_rev: encoder counts per sprocket revolution (150:1 motors: 1807).
+        max_speed_mps: tread speed at power 400, m/s (0.23 m/s at 200).
+        start: initial pose (x m, y m, yaw rad) in the arena frame.
+    """
+
+    name: str
+    color_rgb: tuple[int, int, int]
+    marker_id: int | None = None
+    length_m: float = 0.10
+    width_m: float = 0.10
+    track_width_m: float = 0.09
+    sprocket_diameter_m: float = 0.038
+    counts_per_rev: int = 1807
+    max_speed_mps: float = 0.46
+    start: tuple[float, float, float] = (0.9, 0.9, 0.0)
+
+
+class World:
+    """The simulated arena with N robots. Thread-safe: every public method takes ``self.lock``.
+
+    Args:
+        robots: robot descriptions; robot ``i`` is ``robots[i]``.
+        arena_m: side of the square arena, m (the paper's mats: 1.83 m).
+        lighting: ceiling lighting level, one of ``"full"``, ``"dimmed"``, ``"dark"``.
+        seed: seed of every random draw (mismatch, noise, biases).
+    """
+
+    #: Motor power below which the tread does not move (static friction), power units.
+    DEADBAND = 12
+    #: Tread-speed process noise, relative (1 sigma per sqrt(s)).
+    SPEED_NOISE = 0.02
+
+    def __init__(self, robots: list[RobotSpec], arena_m: float = 1.83, lighting: str = "full",
+                 seed: int = 0):
+        if lighting not in LIGHTING_LEVELS:
+            raise ValueError(f"lighting must be one of {LIGHTING_LEVELS}, got {lighting!r}")
+        if arena_m <= 0:
+            raise ValueError(f"arena_m must be > 0, got {arena_m}")
+        self.lock = threading.RLock()
+        self.robots: list[RobotSpec] = list(robots)
+        self.arena_m = float(arena_m)
+        self.lighting = lighting
+        self.seed = int(seed)
+        self.t = 0.0
+        n = len(self.robots)
+        self._rng = np.random.default_rng(seed)
+        rng = self._rng
+        # geometry
+        self._track = np.array([r.track_width_m for r in self.robots], dtype=float)
+        self._vmax = np.array([r.max_speed_mps for r in self.robots], dtype=float)
+        self._circ = np.array([math.pi * r.sprocket_diameter_m for r in self.robots], dtype=float)
+        self._cpr = np.array([r.counts_per_rev for r in self.robots], dtype=float)
+        # half-extent of the footprint for wall contact (half diagonal: any yaw stays inside)
+        self._half = np.array([0.5 * math.hypot(r.length_m, r.width_m) for r in self.robots])
+        # state: x, y, yaw, tread speeds (m/s), body velocity, tread travel (m)
+        self._pose = np.array([r.start for r in self.robots], dtype=float).reshape(n, 3)
+        for i in range(n):
+            self._pose[i, :2] = np.clip(self._pose[i, :2], self._half[i],
+                                        self.arena_m - self._half[i])
+        self._power = np.zeros((n, 2))
+        self._vtread = np.zeros((n, 2))
+        self._vel = np.zeros((n, 3))        # vx, vy (arena, m/s), omega (rad/s)
+        self._acc_body = np.zeros((n, 2))   # body-frame linear acceleration (x, y), m/s^2
+        self._travel = np.zeros((n, 2))     # cumulative tread travel, m
+        self._energy = np.zeros(n)          # work done by the motors, arbitrary units
+        # per-robot imperfections (seeded)
+        self._gain = 1.0 + rng.normal(0.0, 0.025, (n, 2))
+        self._tau = rng.uniform(0.05, 0.10, (n, 2))
+        self._chi0 = rng.uniform(1.15, 1.30, n)          # effective track-width factor
+        self._lat_slip = rng.uniform(0.01, 0.03, n)      # lateral drift per (m/s * rad/s)
+        self._gyro_bias = rng.normal(0.0, 0.01, (n, 3))   # rad/s
+        self._accel_bias = rng.normal(0.0, 0.05, (n, 3))  # m/s^2
+        self._mag_bias = rng.normal(0.0, 5.0, (n, 3))     # µT (hard iron)
+        self._battery0 = rng.uniform(5000.0, 5400.0, n)   # mV, 4 x AA NiMH
+
+    # ------------------------------------------------------------------ commands
+    def set_power(self, i: int, left: int, right: int) -> None:
+        """Set motor power of robot ``i`` per side, -400..400 (clipped)."""
+        with self.lock:
+            self._check(i)
+            self._power[i, 0] = float(np.clip(left, -MAX_POWER, MAX_POWER))
+            self._power[i, 1] = float(np.clip(right, -MAX_POWER, MAX_POWER))
+
+    def power(self, i: int) -> tuple[int, int]:
+        """Current commanded motor power (left, right) of robot ``i``."""
+        with self.lock:
+            self._check(i)
+            return int(self._power[i, 0]), int(self._power[i, 1])
+
+    # ------------------------------------------------------------------ physics
+    def step(self, dt: float) -> None:
+        """Advance the physics by ``dt`` seconds (internally in sub-steps of at most 5 ms)."""
+        if dt < 0:
+            raise ValueError(f"dt must be >= 0, got {dt}")
+        with self.lock:
+            n_sub = max(1, int(math.ceil(dt / 0.005 - 1e-9)))
+            h = dt / n_sub
+            for _ in range(n_sub):
+                self._substep(h)
+            self.t += dt
+
+    def _substep(self, h: float) -> None:
+        if h <= 0 or len(self.robots) == 0:
+            return
+        p = self._power
+        eff = np.where(np.abs(p) < self.DEADBAND, 0.0, p)
+        target = eff / MAX_POWER * self._vmax[:, None] * self._gain
+        alpha = 1.0 - np.exp(-h / self._tau)
+        v_old = self._vtread.copy()
+        self._vtread += (target - self._vtread) * alpha
+        moving = np.abs(self._vtread) > 1e-4
+        noise = self._rng.normal(0.0, self.SPEED_NOISE * math.sqrt(h), self._vtread.shape)
+        self._vtread += noise * np.abs(self._vtread) * moving
+        vl, vr = self._vtread[:, 0], self._vtread[:, 1]
+        # skid-steer: turning skids the tracks, effective track width grows with turn rate
+        dv = vr - vl
+        chi = self._chi0 * (1.0 + 0.3 * np.clip(np.abs(dv) / (2 * self._vmax), 0, 1))
+        omega = dv / (self._track * chi)
+        v = 0.5 * (vl + vr) * (1.0 - 0.02 * np.clip(np.abs(omega) / 10.0, 0, 1))
+        v_lat = -self._lat_slip * v * omega          # outward drift on curves
+        yaw = self._pose[:, 2]
+        c, s = np.cos(yaw), np.sin(yaw)
+        vx = c * v - s * v_lat
+        vy = s * v + c * v_lat
+        x_new = self._pose[:, 0] + vx * h
+        y_new = self._pose[:, 1] + vy * h
+        lo, hi = self._half, self.arena_m - self._half
+        xc, yc = np.clip(x_new, lo, hi), np.clip(y_new, lo, hi)
+        vx = np.where(xc != x_new, 0.0, vx)
+        vy = np.where(yc != y_new, 0.0, vy)
+        self._pose[:, 0], self._pose[:, 1] = xc, yc
+        self._pose[:, 2] = (yaw + omega * h + math.pi) % (2 * math.pi) - math.pi
+        v_body_old = 0.5 * (v_old[:, 0] + v_old[:, 1])
+        self._acc_body[:, 0] = (0.5 * (vl + vr) - v_body_old) / h
+        self._acc_body[:, 1] = v * omega
+        self._vel[:, 0], self._vel[:, 1], self._vel[:, 2] = vx, vy, omega
+        self._travel += self._vtread * h
+        self._energy += np.abs(eff).sum(axis=1) / MAX_POWER * h
+
+    # ------------------------------------------------------------------ state
+    def pose(self, i: int) -> tuple[float, float, float]:
+        """Pose of robot ``i``: (x m, y m, yaw rad in [-pi, pi)) in the arena frame."""
+        with self.lock:
+            self._check(i)
+            x, y, yaw = self._pose[i]
+            return float(x), float(y), float(yaw)
+
+    def poses(self) -> np.ndarray:
+        """Poses of all robots, shape (n, 3): x m, y m, yaw rad (arena frame). A copy."""
+        with self.lock:
+            return self._pose.copy()
+
+    def velocity(self, i: int) -> tuple[float, float, float]:
+        """Velocity of robot ``i``: vx, vy (m/s, arena frame) and yaw rate omega (rad/s)."""
+        with self.lock:
+            self._check(i)
+            vx, vy, w = self._vel[i]
+            return float(vx), float(vy), float(w)
+
+    def velocities(self) -> np.ndarray:
+        """Velocities of all robots, shape (n, 3): vx, vy (m/s, arena), omega (rad/s). A copy."""
+        with self.lock:
+            return self._vel.copy()
+
+    def encoder_counts(self, i: int) -> tuple[int, int]:
+        """Cumulative encoder counts (left, right) of robot ``i``: tread travel / sprocket
+        circumference * counts_per_rev, unbounded Python ints (wrapping is the firmware's job)."""
+        with self.lock:
+            self._check(i)
+            c = np.floor(self._travel[i] / self._circ[i] * self._cpr[i])
+            return int(c[0]), int(c[1])
+
+    def imu(self, i: int) -> dict:
+        """One IMU sample of robot ``i`` in the body frame (x forward, y left, z up).
+
+        Returns ``{"accel": (3,) m/s^2, "gyro": (3,) rad/s, "mag": (3,) µT}`` as numpy
+        arrays, with white noise (accel 0.03 m/s^2, gyro 0.003 rad/s, mag 0.3 µT) and a
+        constant per-robot bias. A resting robot reads accel ~ (0, 0, +9.81).
+        """
+        with self.lock:
+            self._check(i)
+            rng = self._rng
+            yaw = self._pose[i, 2]
+            acc = np.array([self._acc_body[i, 0], self._acc_body[i, 1], GRAVITY])
+            gyro = np.array([0.0, 0.0, self._vel[i, 2]])
+            c, s = math.cos(yaw), math.sin(yaw)
+            ex, ey, ez = EARTH_FIELD_UT
+            mag = np.array([c * ex + s * ey, -s * ex + c * ey, ez])
+            return {
+                "accel": acc + self._accel_bias[i] + rng.normal(0.0, 0.03, 3),
+                "gyro": gyro + self._gyro_bias[i] + rng.normal(0.0, 0.003, 3),
+                "mag": mag + self._mag_bias[i] + rng.normal(0.0, 0.3, 3),
+            }
+
+    def battery_mv(self, i: int) -> int:
+        """Battery voltage of robot ``i``, mV: drains with motor work, sags under load."""
+        with self.lock:
+            self._check(i)
+            load = np.abs(self._power[i]).sum() / (2 * MAX_POWER)
+            mv = self._battery0[i] - 0.5 * self._energy[i] - 250.0 * load
+            return int(max(mv, 3500.0))
+
+    def _check(self, i: int) -> None:
+        if not 0 <= i < len(self.robots):
+            raise IndexError(f"robot index {i} out of range (world has {len(self.robots)} robots)")
