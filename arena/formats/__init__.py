@@ -1,0 +1,80 @@
+"""Event file formats, chosen by file extension.
+
+Read: Prophesee RAW (EVT 2.0 / 2.1 / 3.0, version from the header), Prophesee DAT,
+AEDAT 4.0 (iniVation, LZ4/ZSTD packets), the paper's CSV (``x,y,p,t_us``), ``.npy``
+and ``.npz`` (arrays x, y, p, t). Write: RAW EVT 3.0 or 2.0 (``evt=3|2``), DAT,
+AEDAT4, CSV, npz/npy. Events are :data:`arena.events.EVENT_DTYPE` (px, px, 1=ON, µs),
+timestamps are the sensor's absolute ones.
+
+>>> ev, width, height = read_events("rec.raw")            # doctest: +SKIP
+>>> for chunk in iter_events("rec.aedat4"): ...           # doctest: +SKIP
+>>> write_events("rec.dat", ev, width, height)            # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from arena.formats.aedat4 import Aedat4Reader, Aedat4Writer
+from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError
+from arena.formats.csvfile import CsvReader, CsvWriter
+from arena.formats.dat import DatReader, DatWriter
+from arena.formats.numpy_files import NumpyReader, NumpyWriter
+from arena.formats.raw import RawReader, RawWriter
+
+__all__ = ["FormatError", "EventReader", "EventWriter", "READ_EXTENSIONS", "WRITE_EXTENSIONS",
+           "iter_events", "read_events", "write_events", "open_writer"]
+
+_READERS = {".raw": RawReader, ".dat": DatReader, ".aedat4": Aedat4Reader, ".csv": CsvReader,
+            ".npy": NumpyReader, ".npz": NumpyReader}
+_WRITERS = {".raw": RawWriter, ".dat": DatWriter, ".aedat4": Aedat4Writer, ".csv": CsvWriter,
+            ".npy": NumpyWriter, ".npz": NumpyWriter}
+READ_EXTENSIONS = tuple(_READERS)
+WRITE_EXTENSIONS = tuple(_WRITERS)
+
+
+def _ext(path: str | Path, table: dict, verb: str) -> type:
+    ext = Path(path).suffix.lower()
+    if ext not in table:
+        raise FormatError(f"cannot {verb} {str(path)!r}: unknown extension {ext or '(none)'!r}; "
+                          f"known: {', '.join(table)}")
+    return table[ext]
+
+
+def iter_events(path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS, **opts) -> EventReader:
+    """Open an event file for streaming: iterate the returned reader for event chunks.
+
+    The reader exposes ``width`` and ``height`` (px) and is a context manager.
+    ``opts`` go to the format's reader (e.g. ``width``/``height`` for CSV and npy).
+    Raises :class:`FormatError` for unknown or corrupt files, ``OSError`` if unreadable.
+    """
+    cls = _ext(path, _READERS, "read")
+    if not Path(path).is_file():
+        raise FormatError(f"no such file: {str(path)!r}")
+    try:
+        return cls(path, chunk_events=chunk_events, **opts)
+    except (UnicodeDecodeError, ValueError) as exc:
+        if isinstance(exc, FormatError):
+            raise
+        raise FormatError(f"{path}: corrupt {Path(path).suffix} file ({exc})") from None
+
+
+def read_events(path: str | Path, **opts) -> tuple[np.ndarray, int, int]:
+    """Read a whole event file: returns ``(events, width, height)``."""
+    with iter_events(path, **opts) as reader:
+        return reader.read_all(), reader.width, reader.height
+
+
+def open_writer(path: str | Path, width: int, height: int, **opts) -> EventWriter:
+    """Open a streaming writer chosen by extension; ``opts``: ``evt=3|2`` for RAW,
+    ``compression=`` for AEDAT4."""
+    cls = _ext(path, _WRITERS, "write")
+    return cls(path, width, height, **opts)
+
+
+def write_events(path: str | Path, events: np.ndarray, width: int, height: int, **opts) -> None:
+    """Write ``events`` (sensor ``width`` x ``height`` px) to ``path``, format by extension."""
+    with open_writer(path, width, height, **opts) as writer:
+        writer.write(events)

@@ -1,0 +1,105 @@
+"""Prophesee DAT files: ``% key value`` header lines, a 2-byte (event type, event size)
+preamble, then 8-byte events: uint32 t (µs), uint32 with x in bits 13..0, y in 27..14
+and polarity in 31..28.
+
+The 32-bit time wraps after 71.6 min; the reader extends wraps. The writer stores
+``t mod 2**32``, so absolute times beyond 2**32 µs are kept only relative to the wrap.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from arena.events import EVENT_DTYPE
+from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events
+
+_CD_TYPE = 0x0C
+_WORD = np.dtype([("t", "<u4"), ("d", "<u4")])
+
+
+class DatReader(EventReader):
+    """Streaming reader of a Prophesee DAT (CD events) file."""
+
+    def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> None:
+        super().__init__()
+        self._f = open(path, "rb")
+        fields: dict[str, str] = {}
+        while True:
+            pos = self._f.tell()
+            if self._f.read(1) != b"%":
+                self._f.seek(pos)
+                break
+            line = self._f.readline()
+            if not line.endswith(b"\n"):
+                raise FormatError(f"{path}: DAT header is truncated")
+            key, _, value = line.decode("latin-1").strip().partition(" ")
+            fields[key.lower()] = value.strip()
+        pre = self._f.read(2)
+        if len(pre) < 2:
+            raise FormatError(f"{path}: DAT file ends before its event type/size bytes")
+        self.event_type, self.event_size = pre[0], pre[1]
+        if self.event_size != 8:
+            raise FormatError(f"{path}: DAT event size {self.event_size} not supported (expected 8)")
+        self.fields = fields
+        self.width = int(fields.get("width", 0))
+        self.height = int(fields.get("height", 0))
+        if not (self.width and self.height):
+            m = re.search(r"(\d+)\s*x\s*(\d+)", fields.get("geometry", ""))
+            self.width, self.height = (int(m.group(1)), int(m.group(2))) if m else (1280, 720)
+        self._chunk = chunk_events
+        self._offset = 0
+        self._last = -1
+        self.truncated_bytes = 0
+
+    def chunks(self):
+        while True:
+            data = self._f.read(self._chunk * 8)
+            if not data:
+                return
+            n = len(data) // 8
+            if len(data) % 8:
+                self.truncated_bytes = len(data) % 8
+            w = np.frombuffer(data[:n * 8], dtype=_WORD)
+            t = w["t"].astype(np.int64)
+            prev = np.empty(n, np.int64)
+            if n:
+                prev[0] = self._last if self._last >= 0 else t[0]
+                prev[1:] = t[:-1]
+            wrap = (t - prev) < -(1 << 31)
+            t += self._offset + (np.cumsum(wrap, dtype=np.int64) << 32)
+            self._offset += int(np.count_nonzero(wrap)) << 32
+            self._last = int(w["t"][-1]) if n else self._last
+            ev = np.empty(n, EVENT_DTYPE)
+            d = w["d"]
+            ev["x"] = d & 0x3FFF
+            ev["y"] = (d >> 14) & 0x3FFF
+            ev["p"] = (d >> 28) & 1
+            ev["t"] = t
+            yield self._valid(ev)
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class DatWriter(EventWriter):
+    """Writer of a Prophesee DAT file (CD events, version 2 header)."""
+
+    def __init__(self, path: str | Path, width: int, height: int) -> None:
+        self._f = open(path, "wb")
+        self._f.write(f"% Data file containing CD events.\n% Version 2\n% Width {width}\n"
+                      f"% Height {height}\n% end\n".encode())
+        self._f.write(bytes([_CD_TYPE, 8]))
+
+    def write(self, events: np.ndarray) -> None:
+        events = check_events(events)
+        w = np.empty(events.size, _WORD)
+        w["t"] = (events["t"] & 0xFFFFFFFF).astype(np.uint32)
+        w["d"] = (events["x"].astype(np.uint32) & 0x3FFF) | ((events["y"].astype(np.uint32) & 0x3FFF) << 14) \
+            | ((events["p"].astype(np.uint32) & 1) << 28)
+        self._f.write(w.tobytes())
+
+    def close(self) -> None:
+        self._f.close()
