@@ -1,0 +1,298 @@
+"""The ``arena`` command: one subcommand per service plus lab tools.
+
+Built-in subcommands: ``router``, ``status``, ``watch``. Service subcommands (``sim``, ``edge``,
+``track``, ``bridge``, ...) are registered by their packages through the ``arena.commands`` entry
+point group, python-can style: each entry is a function ``register(subparsers)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import threading
+import time
+from importlib.metadata import entry_points
+
+from arena import __version__
+from arena.messages import EventWindow, Message, MessageError, decode
+from arena.session import SessionError, add_zenoh_arguments, open_session
+
+log = logging.getLogger("arena")
+
+EPILOG = """\
+Start here:
+  arena demo                       the whole lab on the built-in simulated arena
+  arena router                     a Zenoh router on tcp/127.0.0.1:7447 (the stand-in for zenohd)
+  arena status                     which services are alive and how they are doing
+  arena watch 'arena/robots/*'     print the tracks as they arrive
+Each command has --help with examples."""
+
+
+def _formatter(prog: str) -> argparse.HelpFormatter:
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+# --------------------------------------------------------------------------------------------
+# arena router
+# --------------------------------------------------------------------------------------------
+def _register_router(sub) -> None:
+    p = sub.add_parser(
+        "router", help="run a Zenoh router (stand-in for zenohd)", formatter_class=_formatter,
+        description="Run a Zenoh session in router mode: it routes between clients and peers on\n"
+                    "several hosts, liveliness, queries, TLS, user/password and access control.\n"
+                    "(zenohd is not pip-installable; its plugins (REST, storage) do not load here.)",
+        epilog="Examples:\n"
+               "  arena router                                  # tcp/127.0.0.1:7447\n"
+               "  arena router -l tcp/0.0.0.0:7447              # reachable from other hosts\n"
+               "  arena router -l tls/0.0.0.0:7447 --zenoh-config deploy/router.json5\n"
+               "  arena router -e tcp/198.18.0.2:7447           # mesh with another router")
+    p.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=None,
+                   help="endpoint to listen on, repeatable (default tcp/127.0.0.1:7447)")
+    p.add_argument("-e", "--connect", metavar="ENDPOINT", action="append", default=None,
+                   help="other routers to connect to (mesh), repeatable")
+    p.add_argument("--zenoh-config", metavar="JSON5", default=None,
+                   help="Zenoh config for TLS, user/password and access control (see deploy/)")
+    p.add_argument("--lease-ms", type=int, default=None, help="link lease in ms (Zenoh default 10000)")
+    p.add_argument("--name", default=None,
+                   help="name in arena status (default: <hostname>-<port of the first listen endpoint>)")
+    p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
+    p.set_defaults(func=_run_router)
+
+
+def _run_router(args) -> int:
+    from arena.service import Service, stop_on_signals
+    from arena.session import ZenohSettings
+
+    settings = ZenohSettings(mode="router", connect=list(args.connect or []),
+                             listen=list(args.listen or ["tcp/127.0.0.1:7447"]),
+                             config_file=args.zenoh_config, lease_ms=args.lease_ms)
+    import re
+    import socket
+
+    port = (re.findall(r":(\d+)$", settings.listen[0]) or ["0"])[0] if settings.listen else "0"
+    name = args.name or re.sub(r"[^A-Za-z0-9_.-]", "-", f"{socket.gethostname()}-{port}")[:64]
+    stop = stop_on_signals()
+    try:
+        with open_session(settings) as session, Service(session, "router", name):
+            print(f"arena router {session.zid()} listening on {', '.join(settings.listen)}"
+                  + (f", connected to {', '.join(settings.connect)}" if settings.connect else ""), flush=True)
+            stop.wait(args.duration)
+    except KeyboardInterrupt:
+        pass
+    except SessionError as exc:
+        print(f"arena router: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# arena status
+# --------------------------------------------------------------------------------------------
+def _register_status(sub) -> None:
+    p = sub.add_parser(
+        "status", help="which services are alive, and their last status", formatter_class=_formatter,
+        description="List the services that are alive (liveliness tokens arena/alive/**) with their\n"
+                    "last status line (arena/status/**): rates, drops, errors, latency.",
+        epilog="Examples:\n"
+               "  arena status\n"
+               "  arena status --json\n"
+               "  arena status -e tcp/198.18.0.1:7447 -m client   # a lab's router from another host")
+    p.add_argument("--wait", type=float, default=1.5, help="seconds to collect status messages (default 1.5)")
+    p.add_argument("--json", action="store_true", help="machine-readable output (one JSON document)")
+    add_zenoh_arguments(p)
+    p.set_defaults(func=_run_status)
+
+
+def _fmt_rate(v: float) -> str:
+    if v >= 1e6:
+        return f"{v / 1e6:.1f}M"
+    if v >= 1e3:
+        return f"{v / 1e3:.1f}k"
+    return f"{v:.0f}" if v == int(v) else f"{v:.1f}"
+
+
+def _run_status(args) -> int:
+    statuses: dict[tuple[str, str], dict] = {}
+    alive: set[tuple[str, str]] = set()
+    lock = threading.Lock()
+
+    def on_status(sample) -> None:
+        try:
+            st = decode(bytes(sample.payload))
+        except MessageError:
+            return
+        with lock:
+            statuses[(st.role, st.name)] = st.to_dict()
+
+    try:
+        with open_session(args) as session:
+            sub = session.declare_subscriber("arena/status/**", on_status)
+            for reply in session.liveliness().get("arena/alive/**", timeout=2.0):
+                if reply.ok is not None:
+                    parts = str(reply.ok.key_expr).split("/")
+                    if len(parts) == 4:
+                        alive.add((parts[2], parts[3]))
+            time.sleep(max(0.0, args.wait))
+            sub.undeclare()
+    except SessionError as exc:
+        print(f"arena status: {exc}", file=sys.stderr)
+        return 2
+    with lock:
+        keys = sorted(alive | set(statuses))
+        rows = []
+        for k in keys:
+            st = statuses.get(k, {})
+            rows.append({"role": k[0], "name": k[1], "alive": k in alive, **{kk: st.get(kk) for kk in
+                         ("host", "pid", "state", "uptime_s", "rates", "gauges", "errors", "last_error")}})
+    if args.json:
+        print(json.dumps(rows, indent=2, default=str))
+        return 0
+    if not rows:
+        print("no arena service is alive (is a router running and are you connected to it?)")
+        return 1
+    header = f"{'ROLE':<12} {'NAME':<16} {'ALIVE':<5} {'STATE':<9} {'HOST':<14} {'UP':>7}  {'ERR':>4}  RATES / GAUGES"
+    print(header)
+    for r in rows:
+        rates = " ".join(f"{k}={_fmt_rate(v)}/s" for k, v in sorted((r["rates"] or {}).items()) if v)
+        gauges = " ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
+                          for k, v in sorted((r["gauges"] or {}).items()))
+        up = f"{r['uptime_s']:.0f}s" if r["uptime_s"] is not None else "-"
+        print(f"{r['role']:<12} {r['name']:<16} {'yes' if r['alive'] else 'NO':<5} {r['state'] or '-':<9} "
+              f"{(r['host'] or '-')[:14]:<14} {up:>7}  {r['errors'] if r['errors'] is not None else '-':>4}  "
+              f"{(rates + ' ' + gauges).strip()}")
+        if r["last_error"]:
+            print(f"{'':<12}   last error: {r['last_error']}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# arena watch
+# --------------------------------------------------------------------------------------------
+def _register_watch(sub) -> None:
+    p = sub.add_parser(
+        "watch", help="decode and print arena messages on a key expression", formatter_class=_formatter,
+        description="Subscribe to KEYEXPR and print every arena message decoded, one per line.\n"
+                    "Event windows are summarised (their compressed bytes are not printed).",
+        epilog="Examples:\n"
+               "  arena watch 'arena/robots/*'\n"
+               "  arena watch 'arena/telemetry/zumo1' --json\n"
+               "  arena watch 'arena/**' --count 20")
+    p.add_argument("keyexpr", nargs="?", default="arena/**", help="Zenoh key expression (default arena/**)")
+    p.add_argument("--json", action="store_true", help="print one JSON object per line")
+    p.add_argument("--count", type=int, default=None, help="stop after this many messages")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    add_zenoh_arguments(p)
+    p.set_defaults(func=_run_watch)
+
+
+def _jsonable(msg: Message) -> dict:
+    d = {"kind": msg.KIND, **msg.to_dict()}
+    if isinstance(msg, EventWindow):
+        d["data"] = f"<{len(msg.data)} bytes>"
+    for k, v in list(d.items()):
+        if isinstance(v, float) and not math.isfinite(v):
+            d[k] = None
+        elif isinstance(v, tuple):
+            d[k] = list(v)
+    return d
+
+
+def _line(key: str, msg: Message) -> str:
+    d = _jsonable(msg)
+    d.pop("kind")
+    parts = []
+    for k, v in d.items():
+        if v is None or v == {} or v == "":
+            continue
+        if isinstance(v, float):
+            v = f"{v:.4g}"
+        parts.append(f"{k}={v}")
+    return f"{key} {msg.KIND}: " + " ".join(parts)
+
+
+def _run_watch(args) -> int:
+    from arena.service import stop_on_signals
+
+    stop = stop_on_signals()
+    n = 0
+    lock = threading.Lock()
+
+    def on_sample(sample) -> None:
+        nonlocal n
+        key = str(sample.key_expr)
+        payload = bytes(sample.payload)
+        try:
+            msg = decode(payload)
+            out = json.dumps({"key": key, **_jsonable(msg)}, default=str) if args.json else _line(key, msg)
+        except MessageError as exc:
+            out = (json.dumps({"key": key, "error": str(exc), "bytes": len(payload)}) if args.json
+                   else f"{key} <not an arena message, {len(payload)} bytes: {exc}>")
+        with lock:
+            if args.count is not None and n >= args.count:
+                return
+            n += 1
+            print(out, flush=True)
+            if args.count is not None and n >= args.count:
+                stop.set()
+
+    try:
+        with open_session(args) as session:
+            session.declare_subscriber(args.keyexpr, on_sample)
+            stop.wait(args.duration)
+    except KeyboardInterrupt:
+        pass
+    except SessionError as exc:
+        print(f"arena watch: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # an invalid key expression is reported by zenoh as ZError
+        print(f"arena watch: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    """The ``arena`` parser with the built-in and every registered service subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="arena", formatter_class=_formatter,
+        description="Fleet tracking of ground robots with a ceiling event camera, over Zenoh.",
+        epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=f"arena {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    _register_router(sub)
+    _register_status(sub)
+    _register_watch(sub)
+    for ep in sorted(entry_points(group="arena.commands"), key=lambda e: e.name):
+        try:
+            register = ep.load()
+        except ImportError as exc:
+            log.debug("command %s not available: %s", ep.name, exc)
+            continue
+        register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``arena`` console command."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 0
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130
+    except SessionError as exc:
+        print(f"arena {args.command}: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

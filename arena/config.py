@@ -1,0 +1,427 @@
+"""The lab config: one TOML file every host of a lab shares.
+
+It describes the arena, the cameras (with their calibration pixel -> arena metres), the webcam, the
+robots, the Zenoh endpoints and per-service options. See ``deploy/lab.example.toml`` for a complete,
+commented example matching the paper's lab. Every mistake raises :class:`ConfigError` whose message
+names the file, the key and what was expected, e.g.::
+
+    deploy/lab.toml: robots[2].marker_id: expected an integer >= 0, got "seven"
+"""
+
+from __future__ import annotations
+
+import builtins
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+from arena.keys import InvalidKey, validate_name
+
+__all__ = [
+    "ConfigError",
+    "LabConfig",
+    "ArenaConfig",
+    "CameraConfig",
+    "WebcamConfig",
+    "RobotConfig",
+    "ZenohConfig",
+    "load_lab_config",
+    "parse_lab_config",
+    "NAMED_COLOURS",
+]
+
+#: Shell colours that may be given by name (RGB, 0-255).
+NAMED_COLOURS: dict[str, tuple[int, int, int]] = {
+    "black": (20, 20, 20),
+    "yellow": (235, 200, 40),
+    "red": (200, 30, 30),
+    "blue": (30, 60, 200),
+    "green": (30, 160, 60),
+    "orange": (240, 120, 20),
+    "purple": (120, 40, 160),
+    "grey": (110, 110, 110),
+    "white": (230, 230, 230),
+    "cyan": (30, 180, 200),
+}
+
+_MODES = ("peer", "client", "router")
+_ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
+
+
+class ConfigError(ValueError):
+    """A lab config that cannot be used; the message names the file, the key and the expectation."""
+
+
+@dataclass
+class ArenaConfig:
+    """The arena floor: a rectangle of ``size_m`` (x, y) metres with its origin at one mat corner."""
+
+    name: str = "arena"
+    size_m: tuple[float, float] = (1.83, 1.83)
+
+
+@dataclass
+class CameraConfig:
+    """An event camera: its name (used in keys), sensor size (px), source URL and calibration."""
+
+    name: str
+    width: int = 640
+    height: int = 480
+    source: str | None = None
+    calibration: dict | None = None  # calibration JSON dict: {"image_size": [w, h], "points": [...]}
+    calibration_file: str | None = None
+
+
+@dataclass
+class WebcamConfig:
+    """The RGB webcam of the ground truth: a device index, file or URL, and its calibration."""
+
+    source: str = "0"
+    fps: float = 24.0
+    calibration: dict | None = None
+    calibration_file: str | None = None
+    detector: str = "aruco"
+
+
+@dataclass
+class RobotConfig:
+    """One robot: name, shell colour (RGB), marker id, serial URL and wheel geometry (m)."""
+
+    name: str
+    color_rgb: tuple[int, int, int] = (20, 20, 20)
+    marker_id: int | None = None
+    serial_url: str | None = None
+    sprocket_diameter_m: float = 0.038
+    track_width_m: float = 0.09
+    counts_per_rev: int = 1807
+    length_m: float = 0.10
+    width_m: float = 0.10
+    hsv_range: tuple | None = None  # ((h_lo, s_lo, v_lo), (h_hi, s_hi, v_hi)) for the colour detector
+
+
+@dataclass
+class ZenohConfig:
+    """How services of this lab reach Zenoh (see ``docs/deployment.md``)."""
+
+    mode: str = "peer"
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    multicast_scouting: bool = False
+    lease_ms: int | None = None
+    config_file: str | None = None  # JSON5 file with anything else (TLS, auth, access control)
+    tls: dict = field(default_factory=dict)  # root_ca_certificate, connect_certificate, ...
+    user: str | None = None
+    password: str | None = None
+
+
+@dataclass
+class LabConfig:
+    """A whole lab: the parsed and validated contents of a lab TOML file."""
+
+    arena: ArenaConfig = field(default_factory=ArenaConfig)
+    cameras: list[CameraConfig] = field(default_factory=list)
+    webcam: WebcamConfig | None = None
+    robots: list[RobotConfig] = field(default_factory=list)
+    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    services: dict[str, dict] = field(default_factory=dict)
+    path: str | None = None
+
+    def camera(self, name: str | None = None) -> CameraConfig:
+        """The camera called ``name`` (or the only/first one when ``name`` is None)."""
+        if not self.cameras:
+            raise ConfigError(f"{self.path or 'lab config'}: no [[cameras]] defined")
+        if name is None:
+            return self.cameras[0]
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise ConfigError(
+            f"{self.path or 'lab config'}: no camera named {name!r}; known: {', '.join(c.name for c in self.cameras)}"
+        )
+
+    def robot(self, name: str) -> RobotConfig:
+        """The robot called ``name``."""
+        for r in self.robots:
+            if r.name == name:
+                return r
+        raise ConfigError(
+            f"{self.path or 'lab config'}: no robot named {name!r}; known: {', '.join(r.name for r in self.robots) or 'none'}"
+        )
+
+    def service(self, role: str) -> dict:
+        """Per-service options of ``role`` (``[services.<role>]``), empty if absent."""
+        return dict(self.services.get(role, {}))
+
+
+class _Reader:
+    """Typed access to a TOML table with error messages naming file and key."""
+
+    def __init__(self, source: str, table: dict, prefix: str):
+        self.source, self.table, self.prefix = source, table, prefix
+
+    def _err(self, key: str, expected: str, value: Any = None, show: bool = True) -> ConfigError:
+        where = f"{self.prefix}.{key}" if self.prefix else key
+        got = f", got {value!r}" if show else ""
+        return ConfigError(f"{self.source}: {where}: expected {expected}{got}")
+
+    def sub(self, key: str, what: str = "a table") -> "_Reader":
+        v = self.table.get(key, {})
+        if not isinstance(v, dict):
+            raise self._err(key, what, v)
+        return _Reader(self.source, v, f"{self.prefix}.{key}" if self.prefix else key)
+
+    def has(self, key: str) -> bool:
+        return key in self.table
+
+    def str(self, key: str, default: Any = ..., choices: tuple | None = None) -> Any:
+        if key not in self.table:
+            if default is ...:
+                raise self._err(key, "a string (this key is required)", show=False)
+            return default
+        v = self.table[key]
+        if not isinstance(v, str):
+            raise self._err(key, "a string", v)
+        if choices and v not in choices:
+            raise self._err(key, f"one of {', '.join(choices)}", v)
+        return v
+
+    def name(self, key: str) -> str:
+        v = self.str(key)
+        try:
+            return validate_name(v, key)
+        except InvalidKey as exc:
+            raise self._err(key, f"a valid name ({exc})", v, show=False) from None
+
+    def int(self, key: str, default: Any = ..., lo: int | None = None, hi: int | None = None) -> Any:
+        if key not in self.table:
+            if default is ...:
+                raise self._err(key, "an integer (this key is required)", show=False)
+            return default
+        v = self.table[key]
+        rng = f" in [{lo}, {hi}]" if lo is not None and hi is not None else (f" >= {lo}" if lo is not None else "")
+        if isinstance(v, bool) or not isinstance(v, int) or (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise self._err(key, f"an integer{rng}", v)
+        return v
+
+    def float(self, key: str, default: Any = ..., lo: float | None = None, hi: float | None = None,
+              positive: bool = False) -> Any:
+        if key not in self.table:
+            if default is ...:
+                raise self._err(key, "a number (this key is required)", show=False)
+            return default
+        v = self.table[key]
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+        if ok and ((lo is not None and v < lo) or (hi is not None and v > hi) or (positive and v <= 0)):
+            ok = False
+        if not ok:
+            rng = " > 0" if positive else (f" in [{lo}, {hi}]" if lo is not None and hi is not None else "")
+            raise self._err(key, f"a finite number{rng}", v)
+        return float(v)
+
+    def bool(self, key: str, default: bool) -> bool:
+        v = self.table.get(key, default)
+        if not isinstance(v, bool):
+            raise self._err(key, "true or false", v)
+        return v
+
+    def str_list(self, key: str, pattern: re.Pattern | None = None, what: str = "strings") -> list[str]:
+        v = self.table.get(key, [])
+        if isinstance(v, str):
+            v = [v]
+        if not isinstance(v, list) or not all(isinstance(s, str) for s in v):
+            raise self._err(key, f"a list of {what}", v)
+        if pattern is not None:
+            for s in v:
+                if not pattern.match(s):
+                    raise self._err(key, f"a list of {what}", s)
+        return list(v)
+
+    def pair(self, key: str, default: Any, integers: bool = False, positive: bool = False) -> Any:
+        if key not in self.table:
+            return default
+        v = self.table[key]
+        good = (isinstance(v, list) and len(v) == 2 and all(
+            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) and (not positive or x > 0)
+            for x in v))
+        if integers and good:
+            good = all(isinstance(x, int) for x in v)
+        if not good:
+            raise self._err(key, f"a pair of {'positive ' if positive else ''}{'integers' if integers else 'numbers'} [a, b]", v)
+        return tuple((int(x) if integers else builtins.float(x)) for x in v)
+
+    def unknown(self, known: tuple[str, ...]) -> None:
+        extra = sorted(set(self.table) - set(known))
+        if extra:
+            where = f"{self.prefix}: " if self.prefix else ""
+            raise ConfigError(f"{self.source}: {where}unknown key(s) {', '.join(extra)}; expected some of {', '.join(known)}")
+
+
+def _calibration(r: _Reader, base_dir: Path | None) -> tuple[dict | None, str | None]:
+    """Read an inline calibration (``points = [...]``) or a file reference (``calibration = "x.json"``)."""
+    file = r.str("calibration", None)
+    if file is not None:
+        path = Path(file)
+        if not path.is_absolute() and base_dir is not None:
+            path = base_dir / path
+        return None, str(path)
+    if not r.has("points"):
+        return None, None
+    pts = r.table["points"]
+    if not isinstance(pts, list) or len(pts) < 4:
+        raise r._err("points", "a list of at least 4 {pixel = [u, v], arena_m = [x, y]} tables", pts)
+    out = []
+    for i, p in enumerate(pts):
+        if not isinstance(p, dict) or "pixel" not in p or "arena_m" not in p:
+            raise r._err(f"points[{i}]", "a table {pixel = [u, v], arena_m = [x, y]}", p)
+        pr = _Reader(r.source, p, f"{r.prefix}.points[{i}]")
+        out.append({"pixel": list(pr.pair("pixel", None)), "arena_m": list(pr.pair("arena_m", None))})
+    w = r.int("width", 640, lo=1)
+    h = r.int("height", 480, lo=1)
+    return {"image_size": [w, h], "points": out}, None
+
+
+def _colour(r: _Reader, key: str, default: tuple[int, int, int]) -> tuple[int, int, int]:
+    if key not in r.table:
+        return default
+    v = r.table[key]
+    if isinstance(v, str):
+        if v.lower() in NAMED_COLOURS:
+            return NAMED_COLOURS[v.lower()]
+        m = re.match(r"^#?([0-9a-fA-F]{6})$", v)
+        if m:
+            h = m.group(1)
+            return (int(h[0:2], 16), int(h[2:4], 16), int(h[4:6], 16))
+    if isinstance(v, list) and len(v) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and 0 <= c <= 255 for c in v):
+        return tuple(v)  # type: ignore[return-value]
+    raise r._err(key, f"a colour name ({', '.join(NAMED_COLOURS)}), '#rrggbb' or [r, g, b] with 0-255", v)
+
+
+def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | None = None) -> LabConfig:
+    """Validate a parsed TOML document and build a :class:`LabConfig`."""
+    root = _Reader(source, data, "")
+    root.unknown(("arena", "zenoh", "cameras", "webcam", "robots", "services"))
+    lab = LabConfig(path=source)
+
+    a = root.sub("arena")
+    a.unknown(("name", "size_m"))
+    lab.arena = ArenaConfig(name=a.name("name") if a.has("name") else "arena",
+                            size_m=a.pair("size_m", (1.83, 1.83), positive=True))
+
+    z = root.sub("zenoh")
+    z.unknown(("mode", "connect", "listen", "multicast_scouting", "lease_ms", "config_file", "tls", "user", "password"))
+    tls = z.table.get("tls", {})
+    if not isinstance(tls, dict) or not all(isinstance(v, (str, bool)) for v in tls.values()):
+        raise z._err("tls", "a table of strings (file paths) and booleans", tls)
+    lab.zenoh = ZenohConfig(
+        mode=z.str("mode", "peer", choices=_MODES),
+        connect=z.str_list("connect", _ENDPOINT_RE, "endpoints like 'tcp/192.0.2.1:7447'"),
+        listen=z.str_list("listen", _ENDPOINT_RE, "endpoints like 'tcp/0.0.0.0:7447'"),
+        multicast_scouting=z.bool("multicast_scouting", False),
+        lease_ms=z.int("lease_ms", None, lo=100),
+        config_file=z.str("config_file", None),
+        tls=dict(tls),
+        user=z.str("user", None),
+        password=z.str("password", None),
+    )
+
+    cams = data.get("cameras", [])
+    if not isinstance(cams, list):
+        raise root._err("cameras", "an array of tables [[cameras]]", cams)
+    seen: set[str] = set()
+    for i, c in enumerate(cams):
+        if not isinstance(c, dict):
+            raise root._err(f"cameras[{i}]", "a table", c)
+        r = _Reader(source, c, f"cameras[{i}]")
+        r.unknown(("name", "width", "height", "source", "calibration", "points"))
+        name = r.name("name")
+        if name in seen:
+            raise r._err("name", "a name not used by another camera", name)
+        seen.add(name)
+        calib, calib_file = _calibration(r, base_dir)
+        lab.cameras.append(CameraConfig(name=name, width=r.int("width", 640, lo=1, hi=65535),
+                                        height=r.int("height", 480, lo=1, hi=65535),
+                                        source=r.str("source", None), calibration=calib,
+                                        calibration_file=calib_file))
+
+    if "webcam" in data:
+        w = root.sub("webcam")
+        w.unknown(("source", "fps", "calibration", "points", "detector", "width", "height"))
+        src = w.table.get("source", "0")
+        if isinstance(src, int) and not isinstance(src, bool):
+            src = str(src)
+        if not isinstance(src, str):
+            raise w._err("source", "a device index, file path or URL", src)
+        calib, calib_file = _calibration(w, base_dir)
+        lab.webcam = WebcamConfig(source=src, fps=w.float("fps", 24.0, positive=True), calibration=calib,
+                                  calibration_file=calib_file,
+                                  detector=w.str("detector", "aruco", choices=("aruco", "hsv")))
+
+    robots = data.get("robots", [])
+    if not isinstance(robots, list):
+        raise root._err("robots", "an array of tables [[robots]]", robots)
+    seen = set()
+    ids: set[int] = set()
+    for i, rb in enumerate(robots):
+        if not isinstance(rb, dict):
+            raise root._err(f"robots[{i}]", "a table", rb)
+        r = _Reader(source, rb, f"robots[{i}]")
+        r.unknown(("name", "color", "marker_id", "serial_url", "sprocket_diameter_m", "track_width_m",
+                   "counts_per_rev", "length_m", "width_m", "hsv_range"))
+        name = r.name("name")
+        if name == "all":
+            raise r._err("name", "any name but 'all' (reserved for commands to every robot)", name)
+        if name in seen:
+            raise r._err("name", "a name not used by another robot", name)
+        seen.add(name)
+        marker = r.int("marker_id", None, lo=0, hi=999)
+        if marker is not None:
+            if marker in ids:
+                raise r._err("marker_id", "a marker id not used by another robot", marker)
+            ids.add(marker)
+        hsv = rb.get("hsv_range")
+        if hsv is not None:
+            ok = (isinstance(hsv, list) and len(hsv) == 2 and all(
+                isinstance(t, list) and len(t) == 3 and all(isinstance(x, int) and 0 <= x <= 255 for x in t) for t in hsv))
+            if not ok:
+                raise r._err("hsv_range", "[[h_lo, s_lo, v_lo], [h_hi, s_hi, v_hi]] with integers 0-255", hsv)
+            hsv = (tuple(hsv[0]), tuple(hsv[1]))
+        lab.robots.append(RobotConfig(
+            name=name, color_rgb=_colour(r, "color", (20, 20, 20)), marker_id=marker,
+            serial_url=r.str("serial_url", None),
+            sprocket_diameter_m=r.float("sprocket_diameter_m", 0.038, positive=True),
+            track_width_m=r.float("track_width_m", 0.09, positive=True),
+            counts_per_rev=r.int("counts_per_rev", 1807, lo=1),
+            length_m=r.float("length_m", 0.10, positive=True), width_m=r.float("width_m", 0.10, positive=True),
+            hsv_range=hsv))
+
+    s = root.sub("services")
+    for role, opts in s.table.items():
+        if not isinstance(opts, dict):
+            raise s._err(role, "a table of options", opts)
+        lab.services[role] = dict(opts)
+    return lab
+
+
+def load_lab_config(path: str | Path) -> LabConfig:
+    """Read and validate the lab TOML file at ``path``; raise :class:`ConfigError` on any mistake."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: lab config not found (see deploy/lab.example.toml for a template)") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the lab config: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{p}: not a UTF-8 text file") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    return parse_lab_config(data, source=str(p), base_dir=p.parent)

@@ -1,0 +1,213 @@
+"""Zenoh session setup shared by every service and CLI command.
+
+Settings come from, in increasing priority: built-in defaults, the lab config's ``[zenoh]`` table,
+environment variables, and command-line flags (the same flags as the zenoh-python examples:
+``-m/--mode``, ``-e/--connect``, ``-l/--listen``, ``--zenoh-config``).
+
+Defaults: **peer** mode connecting to a router on ``tcp/127.0.0.1:7447`` (start one with
+``arena router``; peers then find each other through it by gossip and talk directly), multicast
+scouting **off** (labs share networks; nothing should join by accident), timestamping **on**.
+Across machines use **client** mode towards the routers: in Zenoh 1.x a router does not relay
+between peers that are only connected to it.
+
+Sessions must always be closed (a Python process with a callback subscriber hangs at exit
+otherwise), so :func:`open_session` is a context manager.
+
+Environment: ``ARENA_LAB`` (lab config path), ``ARENA_ZENOH_MODE``, ``ARENA_ZENOH_CONNECT`` and
+``ARENA_ZENOH_LISTEN`` (comma-separated endpoints), ``ARENA_ZENOH_CONFIG`` (JSON5 file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import zenoh
+
+from arena.config import ConfigError, LabConfig, load_lab_config
+
+log = logging.getLogger("arena.session")
+
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+MODES = ("peer", "client", "router")
+
+
+class SessionError(RuntimeError):
+    """Zenoh could not be opened with the given settings; the message says what to check."""
+
+
+@dataclass
+class ZenohSettings:
+    """Resolved connection settings (see module docstring for their sources)."""
+
+    mode: str = "peer"
+    connect: list[str] = field(default_factory=lambda: [DEFAULT_ROUTER])
+    listen: list[str] = field(default_factory=list)
+    multicast_scouting: bool = False
+    lease_ms: int | None = None
+    config_file: str | None = None
+    tls: dict = field(default_factory=dict)
+    user: str | None = None
+    password: str | None = None
+
+    def to_zenoh_config(self) -> zenoh.Config:
+        """Build the ``zenoh.Config`` for these settings."""
+        if self.config_file:
+            try:
+                conf = zenoh.Config.from_file(self.config_file)
+            except Exception as exc:  # zenoh raises ZError with the parser's text
+                raise SessionError(f"{self.config_file}: not a usable Zenoh JSON5 config: {exc}") from None
+        else:
+            conf = zenoh.Config()
+
+        def put(key: str, value) -> None:
+            try:
+                conf.insert_json5(key, json.dumps(value))
+            except Exception as exc:
+                raise SessionError(f"Zenoh setting {key}={value!r} was refused: {exc}") from None
+
+        put("mode", self.mode)
+        if self.connect:
+            put("connect/endpoints", list(self.connect))
+        if self.listen:
+            put("listen/endpoints", list(self.listen))
+        put("scouting/multicast/enabled", bool(self.multicast_scouting))
+        put("timestamping/enabled", {"router": True, "peer": True, "client": True})
+        # Senders on a host whose clock runs slightly ahead must not have their samples dropped.
+        put("timestamping/drop_future_timestamp", False)
+        if self.lease_ms:
+            put("transport/link/tx/lease", int(self.lease_ms))
+            put("transport/link/tx/keep_alive", 4)
+        for k, v in self.tls.items():
+            put(f"transport/link/tls/{k}", v)
+        if self.user is not None:
+            put("transport/auth/usrpwd/user", self.user)
+            put("transport/auth/usrpwd/password", self.password or "")
+        return conf
+
+    def describe(self) -> str:
+        ends = ", ".join(self.connect) or "none"
+        lst = f", listening on {', '.join(self.listen)}" if self.listen else ""
+        return f"{self.mode} mode, connecting to {ends}{lst}"
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the shared Zenoh and lab-config flags to ``parser``."""
+    g = parser.add_argument_group("Zenoh and lab config")
+    g.add_argument("--lab", metavar="TOML", default=None,
+                   help="lab config shared by every host (env ARENA_LAB); gives cameras, robots, endpoints")
+    g.add_argument("-m", "--mode", choices=MODES, default=None,
+                   help="Zenoh session mode (default peer; use client towards routers across machines)")
+    g.add_argument("-e", "--connect", metavar="ENDPOINT", action="append", default=None,
+                   help=f"endpoint to connect to, repeatable (default {DEFAULT_ROUTER})")
+    g.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=None,
+                   help="endpoint to listen on, repeatable (e.g. tcp/0.0.0.0:7447)")
+    g.add_argument("--zenoh-config", metavar="JSON5", default=None,
+                   help="Zenoh config file for anything else: TLS, user/password, access control")
+    g.add_argument("--multicast-scouting", action="store_true", default=None,
+                   help="enable multicast scouting (off by default)")
+    g.add_argument("--lease-ms", type=int, default=None,
+                   help="link lease: a dead peer is noticed after this long (Zenoh default 10000)")
+
+
+def _split(value: str | None) -> list[str] | None:
+    if value is None:
+        return None
+    return [s.strip() for s in value.split(",") if s.strip()]
+
+
+def load_lab_from_args(args: argparse.Namespace | None) -> LabConfig | None:
+    """The lab config named by ``--lab`` or ``ARENA_LAB`` (None if neither is set)."""
+    path = getattr(args, "lab", None) if args is not None else None
+    path = path or os.environ.get("ARENA_LAB")
+    if not path:
+        return None
+    return load_lab_config(path)
+
+
+def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | None = None) -> ZenohSettings:
+    """Merge defaults, the lab config, the environment and ``args`` into :class:`ZenohSettings`."""
+    s = ZenohSettings()
+    if lab is not None:
+        z = lab.zenoh
+        s.mode = z.mode
+        if z.connect or z.mode == "router":
+            s.connect = list(z.connect)
+        s.listen = list(z.listen)
+        s.multicast_scouting = z.multicast_scouting
+        s.lease_ms = z.lease_ms
+        s.config_file = z.config_file
+        s.tls = dict(z.tls)
+        s.user, s.password = z.user, z.password
+    env = os.environ
+    if env.get("ARENA_ZENOH_MODE"):
+        s.mode = env["ARENA_ZENOH_MODE"]
+    if env.get("ARENA_ZENOH_CONNECT") is not None:
+        s.connect = _split(env["ARENA_ZENOH_CONNECT"]) or []
+    if env.get("ARENA_ZENOH_LISTEN") is not None:
+        s.listen = _split(env["ARENA_ZENOH_LISTEN"]) or []
+    if env.get("ARENA_ZENOH_CONFIG"):
+        s.config_file = env["ARENA_ZENOH_CONFIG"]
+    if args is not None:
+        if getattr(args, "mode", None):
+            s.mode = args.mode
+        if getattr(args, "connect", None) is not None:
+            s.connect = list(args.connect)
+        if getattr(args, "listen", None) is not None:
+            s.listen = list(args.listen)
+        if getattr(args, "zenoh_config", None):
+            s.config_file = args.zenoh_config
+        if getattr(args, "multicast_scouting", None):
+            s.multicast_scouting = True
+        if getattr(args, "lease_ms", None):
+            s.lease_ms = args.lease_ms
+    if s.mode not in MODES:
+        raise SessionError(f"Zenoh mode {s.mode!r} is not one of {', '.join(MODES)}")
+    return s
+
+
+@contextlib.contextmanager
+def open_session(args: argparse.Namespace | ZenohSettings | None = None, lab: LabConfig | None = None,
+                 wait_s: float | None = 0.0) -> Iterator[zenoh.Session]:
+    """Open a Zenoh session and always close it.
+
+    ``args`` is an argparse namespace with the flags of :func:`add_zenoh_arguments` (or ready
+    :class:`ZenohSettings`). A client needs its router at start: with ``wait_s`` > 0 (or None for
+    forever) the router is waited for with backoff, logging what is awaited, so services can start
+    in any order.
+    """
+    if isinstance(args, ZenohSettings):
+        settings = args
+    else:
+        try:
+            lab = lab if lab is not None else load_lab_from_args(args)
+        except ConfigError as exc:
+            raise SessionError(str(exc)) from None
+        settings = resolve_settings(args, lab)
+    conf = settings.to_zenoh_config()
+    deadline = None if wait_s is None else time.monotonic() + wait_s
+    delay = 0.1
+    while True:
+        try:
+            session = zenoh.open(conf)
+            break
+        except Exception as exc:  # zenoh.ZError
+            if deadline is not None and time.monotonic() >= deadline:
+                raise SessionError(
+                    f"cannot open Zenoh ({settings.describe()}): {str(exc).split(' at ')[0]}. "
+                    "Is a router running there (`arena router`)? Check --connect/--mode or the lab config."
+                ) from None
+            log.warning("waiting for Zenoh (%s): %s", settings.describe(), str(exc).split(" at ")[0])
+            time.sleep(delay)
+            delay = min(delay * 2, 2.0)
+            conf = settings.to_zenoh_config()  # a Config is consumed by open()
+    try:
+        yield session
+    finally:
+        session.close()
