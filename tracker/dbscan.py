@@ -1,0 +1,298 @@
+"""DBSCAN over the active pixels of an event window.
+
+Two backends compute the same clustering of a set of *unique* integer pixel
+coordinates ``(u, v)`` (sensor frame, px):
+
+- :func:`dbscan_sklearn` — the reference: :class:`sklearn.cluster.DBSCAN`.
+- :func:`dbscan_grid` — the default: an exact grid algorithm compiled with numba.
+
+Semantics (identical to scikit-learn): a pixel is a *core* pixel when at least
+``min_samples`` pixels (itself included) lie at a Euclidean distance ``<= eps``.
+Two core pixels within ``eps`` of each other belong to the same cluster; a
+non-core pixel within ``eps`` of a core pixel is a *border* pixel of one of
+those cores' clusters; every other pixel is noise (label ``-1``).
+
+:func:`dbscan_grid` numbers clusters in the order scikit-learn does (by the
+smallest index of a core pixel in the cluster), so the labels of core and noise
+pixels are identical to scikit-learn's. A border pixel within ``eps`` of cores
+of two different clusters goes to the cluster of its nearest core, whereas
+scikit-learn gives it to whichever cluster its visiting order reaches first:
+that is the only possible difference.
+
+The grid backend bins pixels into square cells of side ``c`` (any two pixels in
+one cell are within ``eps``), counts neighbours by visiting nearby cells, unites
+all cores of a cell at once, and tests pairs of cells only while they are not
+yet united. Its cost grows with the number of active pixels, not with the
+sensor size.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["dbscan_sklearn", "dbscan_grid", "core_mask"]
+
+
+def _check(u: np.ndarray, v: np.ndarray, eps: float, min_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    u = np.asarray(u)
+    v = np.asarray(v)
+    if u.shape != v.shape or u.ndim != 1:
+        raise ValueError(f"u and v must be 1-D arrays of equal length, got shapes {u.shape} and {v.shape}")
+    if not (eps > 0 and math.isfinite(eps)):
+        raise ValueError(f"eps must be a positive finite distance in px, got {eps!r}")
+    if int(min_samples) < 1:
+        raise ValueError(f"min_samples must be >= 1, got {min_samples!r}")
+    return u.astype(np.int64, copy=False), v.astype(np.int64, copy=False)
+
+
+def dbscan_sklearn(u: np.ndarray, v: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+    """Reference DBSCAN (scikit-learn) over pixels ``(u, v)``; returns labels, -1 = noise."""
+    u, v = _check(u, v, eps, min_samples)
+    if u.size == 0:
+        return np.empty(0, dtype=np.int64)
+    from sklearn.cluster import DBSCAN
+
+    pts = np.column_stack([u, v]).astype(np.float64)
+    return DBSCAN(eps=float(eps), min_samples=int(min_samples)).fit(pts).labels_.astype(np.int64)
+
+
+def dbscan_grid(u: np.ndarray, v: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+    """Exact DBSCAN over unique integer pixels ``(u, v)`` (px); returns labels, -1 = noise.
+
+    ``eps`` is the neighbourhood radius in px (distance ``<= eps``), ``min_samples``
+    counts the pixel itself, as in scikit-learn. Pixels must be unique (duplicates
+    would be counted twice, as scikit-learn would).
+    """
+    labels, _ = _grid(u, v, eps, min_samples)
+    return labels
+
+
+def core_mask(u: np.ndarray, v: np.ndarray, eps: float, min_samples: int) -> np.ndarray:
+    """Boolean mask of the core pixels of :func:`dbscan_grid`."""
+    _, core = _grid(u, v, eps, min_samples)
+    return core
+
+
+def _grid(u, v, eps, min_samples):
+    u, v = _check(u, v, eps, min_samples)
+    n = u.size
+    if n == 0:
+        return np.empty(0, dtype=np.int64), np.zeros(0, dtype=bool)
+    eps = float(eps)
+    # Largest cell side c (px) such that two integer pixels of one cell, at most
+    # (c-1)*sqrt(2) apart, are always within eps.
+    cell = max(1, int(math.floor(eps / math.sqrt(2.0))) + 1)
+    while (cell - 1) * math.sqrt(2.0) > eps:
+        cell -= 1
+    # Cells up to `reach` away can hold pixels within eps: the closest pixels of
+    # two cells k apart on one axis are (k-1)*c+1 px apart.
+    reach = int(math.floor((eps - 1.0) / cell)) + 1 if eps >= 1.0 else 0
+    return _grid_kernel(u, v, eps * eps, int(min_samples), cell, reach)
+
+
+@njit(cache=True)
+def _find(parent, i):
+    root = i
+    while parent[root] != root:
+        root = parent[root]
+    while parent[i] != root:
+        nxt = parent[i]
+        parent[i] = root
+        i = nxt
+    return root
+
+
+@njit(cache=True)
+def _union(parent, a, b):
+    ra = _find(parent, a)
+    rb = _find(parent, b)
+    if ra == rb:
+        return
+    if ra < rb:
+        parent[rb] = ra
+    else:
+        parent[ra] = rb
+
+
+@njit(cache=True)
+def _cells_touch(pu, pv, core, s0, s1, t0, t1, eps2):
+    """True when a core pixel of cell [s0, s1) is within eps of one of [t0, t1)."""
+    for a in range(s0, s1):
+        if not core[a]:
+            continue
+        for b in range(t0, t1):
+            if not core[b]:
+                continue
+            du = pu[a] - pu[b]
+            dv = pv[a] - pv[b]
+            if du * du + dv * dv <= eps2:
+                return True
+    return False
+
+
+@njit(cache=True)
+def _grid_kernel(u, v, eps2, min_samples, cell, reach):
+    n = u.shape[0]
+    umin = u.min()
+    vmin = v.min()
+    gw = (u.max() - umin) // cell + 1
+    gh = (v.max() - vmin) // cell + 1
+    cu = (u - umin) // cell
+    cv = (v - vmin) // cell
+    cid = cv * gw + cu
+    order = np.argsort(cid, kind="mergesort")
+    ncell = gw * gh
+    start = np.zeros(ncell + 1, dtype=np.int64)
+    for i in range(n):
+        start[cid[i] + 1] += 1
+    for c in range(ncell):
+        start[c + 1] += start[c]
+    pu = u[order]
+    pv = v[order]
+
+    # 1. neighbour counts (itself included) from row prefix sums of the
+    # occupancy image: the eps-disk is a stack of row runs of half-width w[dy].
+    rad = 0
+    while (rad + 1) * (rad + 1) <= eps2:
+        rad += 1
+    half = np.empty(2 * rad + 1, dtype=np.int64)
+    for dy in range(-rad, rad + 1):
+        w = 0
+        while (w + 1) * (w + 1) + dy * dy <= eps2:
+            w += 1
+        half[dy + rad] = w
+    bw = u.max() - umin + 1
+    bh = v.max() - vmin + 1
+    pref = np.zeros((bh, bw + 1), dtype=np.int32)
+    for i in range(n):
+        pref[v[i] - vmin, u[i] - umin + 1] += 1
+    for r in range(bh):
+        for x in range(bw):
+            pref[r, x + 1] += pref[r, x]
+    count = np.zeros(n, dtype=np.int64)
+    for a in range(n):
+        x = pu[a] - umin
+        y = pv[a] - vmin
+        k = 0
+        for dy in range(-rad, rad + 1):
+            r = y + dy
+            if r < 0 or r >= bh:
+                continue
+            w = half[dy + rad]
+            lo = x - w
+            hi = x + w + 1
+            if lo < 0:
+                lo = 0
+            if hi > bw:
+                hi = bw
+            k += pref[r, hi] - pref[r, lo]
+        count[a] = k
+    core = count >= min_samples
+
+    # 2. union of cores: all cores of a cell at once, then pairs of cells
+    parent = np.arange(n)
+    first_core = np.full(ncell, -1, dtype=np.int64)
+    for c in range(ncell):
+        for a in range(start[c], start[c + 1]):
+            if core[a]:
+                if first_core[c] < 0:
+                    first_core[c] = a
+                else:
+                    _union(parent, first_core[c], a)
+    # cells are tested ring by ring (nearest cells first), so that most far
+    # pairs are already united through nearer ones and are skipped
+    for ring in range(1, reach + 1):
+        for c in range(ncell):
+            fa = first_core[c]
+            if fa < 0:
+                continue
+            gx = c % gw
+            gy = c // gw
+            for dy in range(0, ring + 1):
+                yy = gy + dy
+                if yy >= gh:
+                    continue
+                for dx in range(-ring, ring + 1):
+                    if max(abs(dx), dy) != ring or (dy == 0 and dx <= 0):
+                        continue
+                    xx = gx + dx
+                    if xx < 0 or xx >= gw:
+                        continue
+                    c2 = yy * gw + xx
+                    fb = first_core[c2]
+                    if fb < 0 or _find(parent, fa) == _find(parent, fb):
+                        continue
+                    if _cells_touch(pu, pv, core, start[c], start[c + 1], start[c2], start[c2 + 1], eps2):
+                        _union(parent, fa, fb)
+
+    # 3. border pixels: cluster of the nearest core within eps (cells scanned
+    # ring by ring, stopping once no farther ring can hold a nearer core)
+    attach = np.full(n, -1, dtype=np.int64)
+    for c in range(ncell):
+        gx = c % gw
+        gy = c // gw
+        for a in range(start[c], start[c + 1]):
+            if core[a]:
+                continue
+            best = eps2 + 1.0
+            for ring in range(0, reach + 1):
+                if ring > 0 and attach[a] >= 0:
+                    dmin = (ring - 1) * cell + 1
+                    if dmin * dmin > best:
+                        break
+                for dy in range(-ring, ring + 1):
+                    yy = gy + dy
+                    if yy < 0 or yy >= gh:
+                        continue
+                    for dx in range(-ring, ring + 1):
+                        if max(abs(dx), abs(dy)) != ring:
+                            continue
+                        xx = gx + dx
+                        if xx < 0 or xx >= gw:
+                            continue
+                        c2 = yy * gw + xx
+                        if first_core[c2] < 0:
+                            continue
+                        for b in range(start[c2], start[c2 + 1]):
+                            if not core[b]:
+                                continue
+                            du = pu[a] - pu[b]
+                            dv = pv[a] - pv[b]
+                            d2 = du * du + dv * dv
+                            if d2 <= eps2 and (d2 < best or (d2 == best and order[b] < order[attach[a]])):
+                                best = d2
+                                attach[a] = b
+
+    # 4. labels in scikit-learn's order: clusters numbered by their smallest
+    # original index among core pixels
+    root_min = np.full(n, n, dtype=np.int64)
+    for a in range(n):
+        if core[a]:
+            r = _find(parent, a)
+            if order[a] < root_min[r]:
+                root_min[r] = order[a]
+    # rank roots by root_min
+    roots = np.empty(n, dtype=np.int64)
+    keys = np.empty(n, dtype=np.int64)
+    nr = 0
+    for a in range(n):
+        if core[a] and _find(parent, a) == a:
+            roots[nr] = a
+            keys[nr] = root_min[a]
+            nr += 1
+    rank = np.argsort(keys[:nr])
+    root_label = np.full(n, -1, dtype=np.int64)
+    for k in range(nr):
+        root_label[roots[rank[k]]] = k
+    labels = np.full(n, -1, dtype=np.int64)
+    core_out = np.zeros(n, dtype=np.bool_)
+    for a in range(n):
+        if core[a]:
+            labels[order[a]] = root_label[_find(parent, a)]
+            core_out[order[a]] = True
+        elif attach[a] >= 0:
+            labels[order[a]] = root_label[_find(parent, attach[a])]
+    return labels, core_out
