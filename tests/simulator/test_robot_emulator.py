@@ -1,0 +1,141 @@
+"""Robot emulator: protocol over pyserial's socket:// URL, motors, watchdog, link faults."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+import serial
+
+from robot_bridge import protocol as P
+from simulator.robot_emulator import LinkFaults, RobotEmulatorServer
+from simulator.world import RobotSpec, World
+
+
+@pytest.fixture
+def world():
+    w = World([RobotSpec("r1", (20, 20, 20)), RobotSpec("r2", (200, 200, 0), start=(0.5, 0.5, 0.0))], seed=3)
+    stop = threading.Event()
+
+    def run():  # step the world at ~1 kHz sim time = real time
+        last = time.monotonic()
+        while not stop.is_set():
+            now = time.monotonic()
+            w.step(now - last)
+            last = now
+            stop.wait(0.001)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    yield w
+    stop.set()
+    t.join()
+
+
+def read_frames(port, dec, seconds, until=None):
+    out = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        out += dec.feed(port.read(4096))
+        if until and until(out):
+            break
+    return out
+
+
+def test_hello_ping_motors_and_telemetry_over_socket_url(world):
+    with RobotEmulatorServer(world, 1, telemetry_hz=100) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.02)
+        dec = P.StreamDecoder()
+        port.write(P.encode_frame(P.Hello(), 0, 0) + P.encode_frame(P.Ping(77), 1, 0)
+                   + P.encode_frame(P.SetLed(1, 2, 3), 2, 0))
+        frames = []
+        t0 = time.monotonic()
+        for k in range(25):  # drive forward at 50 % for 0.5 s, commands at 50 Hz
+            port.write(P.encode_frame(P.SetMotors(200, 200), 3 + k, 0))
+            frames += read_frames(port, dec, 0.02)
+        elapsed = time.monotonic() - t0
+        port.close()
+    msgs = [f.msg for f in frames]
+    assert any(isinstance(m, P.HelloReply) and m.name == "r2" and m.counts_per_rev == 1807 for m in msgs)
+    assert P.Pong(77) in msgs
+    assert emu.led == (1, 2, 3)
+    tel = [f for f in frames if isinstance(f.msg, P.Telemetry)]
+    assert len(tel) >= 0.6 * 100 * elapsed
+    assert all(P.seq_gap(a.seq, b.seq) == 0 or not isinstance(b.msg, P.Telemetry)
+               for a, b in zip(frames, frames[1:]))
+    last = tel[-1].msg
+    assert last.motor_left == 200 and last.enc_left > 0 and last.enc_right > 0
+    assert last.accel_si[2] == pytest.approx(9.81, abs=0.5)
+    assert 3500 < last.battery_mv < 6000
+    assert world.pose(1)[0] > 0.5 + 0.03  # it moved forward (+x)
+
+
+def test_watchdog_stops_motors_within_300ms(world):
+    with RobotEmulatorServer(world, 0) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.02)
+        port.write(P.encode_frame(P.SetMotors(400, 400), 0, 0))
+        deadline = time.monotonic() + 1.0
+        while world.power(0) == (0, 0) and time.monotonic() < deadline:
+            time.sleep(0.002)
+        assert world.power(0) == (400, 400)
+        deadline = time.monotonic() + 1.0
+        while world.power(0) != (0, 0) and time.monotonic() < deadline:
+            time.sleep(0.002)
+        port.close()
+    assert world.power(0) == (0, 0)
+    assert emu.stats.watchdog_trips == 1
+    delay = emu.stats.watchdog_stop_t - emu.stats.last_command_t
+    assert 0.29 <= delay <= 0.30 + 0.03  # 300 ms plus one loop tick on a loaded machine
+
+
+def test_corruption_and_byte_loss_rates(world):
+    faults = LinkFaults(corruption=0.1, byte_loss=0.002)
+    with RobotEmulatorServer(world, 0, telemetry_hz=200, faults=faults, seed=5) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.02)
+        dec = P.StreamDecoder()
+        frames = read_frames(port, dec, 2.0, until=lambda fr: emu.stats.frames_sent >= 300)
+        port.close()
+    s = emu.stats
+    n = s.frames_sent
+    assert n >= 250
+    assert abs(s.frames_corrupted / n - 0.1) < 0.05
+    assert abs(s.bytes_dropped / (45 * n) - 0.002) < 0.0015
+    assert dec.stats.rejected >= 0.8 * s.frames_corrupted  # dropped+corrupt frames may merge
+    assert len(frames) <= n - s.frames_corrupted
+
+
+def test_disconnect_after_and_latency(world):
+    faults = LinkFaults(disconnect_after_s=0.3, latency_ms=40, jitter_ms=10)
+    with RobotEmulatorServer(world, 0, faults=faults) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.01)
+        dec = P.StreamDecoder()
+        read_frames(port, dec, 0.1)
+        t0 = time.monotonic()
+        port.write(P.encode_frame(P.Ping(1), 0, 0))
+        frames = read_frames(port, dec, 0.5, until=lambda fr: any(isinstance(f.msg, P.Pong) for f in fr))
+        rtt = time.monotonic() - t0
+        assert any(isinstance(f.msg, P.Pong) for f in frames)
+        assert 0.08 <= rtt < 0.3  # 2 x 40 ms + jitter
+        time.sleep(0.4)
+        assert emu.stats.disconnects == 1
+        with pytest.raises(serial.SerialException):
+            for _ in range(50):
+                port.read(100)
+                port.write(b"\x00")
+                time.sleep(0.01)
+        port.close()
+        port2 = serial.serial_for_url(emu.url, timeout=0.02)  # the port accepts again
+        assert read_frames(port2, P.StreamDecoder(), 0.2)
+        port2.close()
+    assert emu.stats.connections == 2
+
+
+def test_bad_arguments():
+    w = World([RobotSpec("r1", (0, 0, 0))])
+    with pytest.raises(ValueError, match="corruption"):
+        LinkFaults(corruption=2)
+    with pytest.raises(IndexError):
+        RobotEmulatorServer(w, 3)
+    with pytest.raises(ValueError, match="telemetry_hz"):
+        RobotEmulatorServer(w, 0, telemetry_hz=0)
