@@ -1,0 +1,248 @@
+"""Event-window codecs: compact, lossless by default, carried by name in ``EventWindow.codec``.
+
+``planes-zstd/1`` (default, lossless): each event becomes one control byte and one
+low-bits byte, plus rare escape varints, each stream zstd-compressed separately:
+
+* a *run* event continues the previous one (same t, y and p, larger x): the control
+  byte holds ``gap >> 7`` (``gap = x - x_prev - 1``) and the low byte ``gap & 127``;
+* any other event: control = 16 + ((p * 2 + dt_code) * 3 + dy_code) * 16 + (x >> 7),
+  low byte = ``x & 127``; ``dt_code`` 0 means same time, 1 means the zigzag time step is
+  in the dt escape stream; ``dy_code`` 0/1 mean dy = 0/-1, 2 means the zigzag dy is in
+  the dy escape stream.
+
+Layout: ``<4sIqIIIIII`` header (magic ``EVW1``, count, base time µs, raw lengths of the
+dt and dy escape streams, compressed lengths of the four streams) then the streams.
+Coordinates must be < 2048 (as in EVT 3.0); times are any int64, in any order.
+
+``planes-zstd-ms/1`` (lossy): times are first floored to 1 ms (relative to ``t_ref_us``),
+then coded as above; x, y and p are exact. ``raw/1``: the :data:`EVENT_DTYPE` bytes.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import zstandard
+from numba import njit
+
+from arena.events import EVENT_DTYPE
+
+DEFAULT_CODEC = "planes-zstd/1"
+LOSSY_CODEC = "planes-zstd-ms/1"
+RAW_CODEC = "raw/1"
+CODECS = (DEFAULT_CODEC, LOSSY_CODEC, RAW_CODEC)
+
+_HEADER = struct.Struct("<4sIqIIIIII")
+_MAGIC = b"EVW1"
+_MAX_X = 2048
+_LEVEL = 1
+
+
+class CodecError(ValueError):
+    """Encoded event data is corrupt, truncated, of an unknown codec or exceeds a limit."""
+
+
+@njit(cache=True, nogil=True)
+def _put_varint(buf, n, v):
+    while v >= 0x80:
+        buf[n] = (v & 0x7F) | 0x80
+        v >>= 7
+        n += 1
+    buf[n] = v
+    return n + 1
+
+
+@njit(cache=True, nogil=True)
+def _encode_planes(xs, ys, ps, ts, t_base, ctrl, low, dt_esc, dy_esc):
+    px = np.int64(0)
+    py = np.int64(0)
+    pp = np.int64(0)
+    pt = t_base
+    ndt = 0
+    ndy = 0
+    for i in range(xs.size):
+        x = np.int64(xs[i])
+        y = np.int64(ys[i])
+        p = np.int64(ps[i]) & 1
+        t = ts[i]
+        if t == pt and y == py and p == pp and x > px and i > 0:
+            gap = x - px - 1
+            ctrl[i] = gap >> 7
+            low[i] = gap & 0x7F
+        else:
+            dtc = 0
+            if t != pt:
+                d = t - pt
+                ndt = _put_varint(dt_esc, ndt, np.uint64((d << 1) ^ (d >> 63)))
+                dtc = 1
+            dy = y - py
+            if dy == 0:
+                dyc = 0
+            elif dy == -1:
+                dyc = 1
+            else:
+                dyc = 2
+                ndy = _put_varint(dy_esc, ndy, np.uint64((dy << 1) ^ (dy >> 63)))
+            ctrl[i] = 16 + ((p * 2 + dtc) * 3 + dyc) * 16 + (x >> 7)
+            low[i] = x & 0x7F
+        px = x
+        py = y
+        pp = p
+        pt = t
+    return ndt, ndy
+
+
+@njit(cache=True, nogil=True)
+def _get_varint(buf, n):
+    v = np.uint64(0)
+    shift = np.uint64(0)
+    while True:
+        if n >= buf.size or shift > 63:
+            return v, -1
+        b = np.uint64(buf[n])
+        v |= (b & np.uint64(0x7F)) << shift
+        n += 1
+        if b < 0x80:
+            return v, n
+        shift += np.uint64(7)
+
+
+@njit(cache=True, nogil=True)
+def _decode_planes(ctrl, low, dt_esc, dy_esc, t_base, xs, ys, ps, ts):
+    """Returns 0 on success, or a negative error code."""
+    px = np.int64(0)
+    py = np.int64(0)
+    pp = np.int64(0)
+    pt = t_base
+    kdt = 0
+    kdy = 0
+    for i in range(ctrl.size):
+        c = np.int64(ctrl[i])
+        lo = np.int64(low[i])
+        if c < 16:
+            x = px + 1 + ((c << 7) | lo)
+            if i == 0 or lo > 0x7F:
+                return -1
+        else:
+            c -= 16
+            if c >= 192 or lo > 0x7F:
+                return -1
+            x = ((c & 15) << 7) | lo
+            k = c >> 4
+            dyc = k % 3
+            k //= 3
+            dtc = k & 1
+            pp = k >> 1
+            if dtc:
+                u, kdt = _get_varint(dt_esc, kdt)
+                if kdt < 0:
+                    return -2
+                pt += np.int64(u >> np.uint64(1)) ^ -np.int64(u & np.uint64(1))
+            if dyc == 1:
+                py -= 1
+            elif dyc == 2:
+                u, kdy = _get_varint(dy_esc, kdy)
+                if kdy < 0:
+                    return -3
+                py += np.int64(u >> np.uint64(1)) ^ -np.int64(u & np.uint64(1))
+        if x >= 65536 or py < 0 or py >= 65536:
+            return -4
+        xs[i] = x
+        ys[i] = py
+        ps[i] = pp
+        ts[i] = pt
+        px = x
+    if kdt != dt_esc.size or kdy != dy_esc.size:
+        return -5
+    return 0
+
+
+def _check(events: np.ndarray) -> np.ndarray:
+    if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
+        from arena.events import as_events
+
+        events = as_events(np.asarray(events))
+    return events
+
+
+def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None = None,
+           level: int = _LEVEL) -> bytes:
+    """Encode an event array (:data:`EVENT_DTYPE`, px, µs) with ``codec``.
+
+    ``t_ref_us``: base of the time deltas and origin of the 1 ms grid of the lossy codec
+    (default: the first event's time). ``level``: zstd level (1 is fastest).
+    Raises :class:`CodecError` for an unknown codec or x >= 2048.
+    """
+    events = _check(events)
+    if codec == RAW_CODEC:
+        return events.tobytes()
+    if codec not in (DEFAULT_CODEC, LOSSY_CODEC):
+        raise CodecError(f"unknown codec {codec!r}; known: {', '.join(CODECS)}")
+    n = events.size
+    base = int(t_ref_us) if t_ref_us is not None else (int(events["t"][0]) if n else 0)
+    ts = events["t"]
+    if codec == LOSSY_CODEC:
+        ts = base + (ts - base) // 1000 * 1000
+    if n and int(events["x"].max()) >= _MAX_X:
+        raise CodecError(f"{codec} codes x < {_MAX_X}; got x = {int(events['x'].max())}")
+    ctrl = np.empty(n, np.uint8)
+    low = np.empty(n, np.uint8)
+    dt_esc = np.empty(n * 10, np.uint8)
+    dy_esc = np.empty(n * 3, np.uint8)
+    ndt, ndy = _encode_planes(events["x"], events["y"], events["p"], np.ascontiguousarray(ts), base,
+                              ctrl, low, dt_esc, dy_esc)
+    z = zstandard.ZstdCompressor(level=level)
+    parts = [z.compress(a.data) for a in (ctrl, low, dt_esc[:ndt], dy_esc[:ndy])]
+    head = _HEADER.pack(_MAGIC, n, base, ndt, ndy, *(len(p) for p in parts))
+    return b"".join([head, *parts])
+
+
+def decode(codec: str, data: bytes, count: int, max_events: int = 10_000_000) -> np.ndarray:
+    """Decode ``count`` events coded with ``codec``; raises :class:`CodecError` on any mismatch.
+
+    ``max_events`` bounds the memory a corrupt or hostile message can claim.
+    """
+    if count < 0 or count > max_events:
+        raise CodecError(f"event count {count} outside [0, {max_events}]")
+    if codec == RAW_CODEC:
+        if len(data) != count * EVENT_DTYPE.itemsize:
+            raise CodecError(f"raw/1 payload has {len(data)} bytes, expected {count * EVENT_DTYPE.itemsize}")
+        return np.frombuffer(data, EVENT_DTYPE).copy()
+    if codec not in (DEFAULT_CODEC, LOSSY_CODEC):
+        raise CodecError(f"unknown codec {codec!r}; known: {', '.join(CODECS)}")
+    if len(data) < _HEADER.size:
+        raise CodecError(f"{codec} payload of {len(data)} bytes is shorter than its header")
+    magic, n, base, ndt, ndy, *sizes = _HEADER.unpack_from(data)
+    if magic != _MAGIC:
+        raise CodecError(f"{codec} payload has a bad magic {magic!r}")
+    if n != count:
+        raise CodecError(f"{codec} payload holds {n} events but the message says {count}")
+    if _HEADER.size + sum(sizes) != len(data):
+        raise CodecError(f"{codec} payload is {len(data)} bytes, its header says {_HEADER.size + sum(sizes)}")
+    if ndt > 10 * n or ndy > 3 * n:
+        raise CodecError(f"{codec} escape streams larger than possible for {n} events")
+    d = zstandard.ZstdDecompressor()
+    out, pos = [], _HEADER.size
+    for size, raw_len in zip(sizes, (n, n, ndt, ndy)):
+        try:
+            plane = d.decompress(data[pos:pos + size], max_output_size=raw_len) if raw_len else b""
+        except zstandard.ZstdError as exc:
+            raise CodecError(f"{codec} payload is corrupt ({exc})") from None
+        if len(plane) != raw_len:
+            raise CodecError(f"{codec} stream has {len(plane)} bytes, expected {raw_len}")
+        out.append(np.frombuffer(plane, np.uint8))
+        pos += size
+    xs = np.empty(n, np.uint16)
+    ys = np.empty(n, np.uint16)
+    ps = np.empty(n, np.uint8)
+    ts = np.empty(n, np.int64)
+    err = _decode_planes(out[0], out[1], out[2], out[3], base, xs, ys, ps, ts)
+    if err:
+        raise CodecError(f"{codec} payload is inconsistent (code {err})")
+    ev = np.empty(n, EVENT_DTYPE)
+    ev["x"] = xs
+    ev["y"] = ys
+    ev["p"] = ps
+    ev["t"] = ts
+    return ev
