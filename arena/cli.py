@@ -269,7 +269,7 @@ def build_parser() -> argparse.ArgumentParser:
     for ep in sorted(entry_points(group="arena.commands"), key=lambda e: e.name):
         try:
             register = ep.load()
-        except ImportError as exc:
+        except (ImportError, AttributeError) as exc:  # package or its register function not there yet
             log.debug("command %s not available: %s", ep.name, exc)
             continue
         register(sub)
