@@ -146,7 +146,7 @@ def _run_status(args) -> int:
         for k in keys:
             st = statuses.get(k, {})
             rows.append({"role": k[0], "name": k[1], "alive": k in alive, **{kk: st.get(kk) for kk in
-                         ("host", "pid", "state", "uptime_s", "rates", "gauges", "errors", "last_error")}})
+                         ("host", "pid", "state", "uptime_s", "counters", "rates", "gauges", "errors", "last_error")}})
     if args.json:
         print(json.dumps(rows, indent=2, default=str))
         return 0

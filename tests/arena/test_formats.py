@@ -1,0 +1,187 @@
+"""Event file formats: reference decode of the shared EVT 3.0 sample, streaming with odd chunk
+boundaries, time wraps, round trips through every writer and reader, bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from arena.events import as_events, make_events
+from arena.formats import FormatError, iter_events, read_events, write_events
+from arena.formats.evt2 import Evt2Decoder, Evt21Decoder, encode_evt2, encode_evt21
+from arena.formats.evt3 import Evt3Decoder, encode_evt3
+from arena.formats.raw import parse_raw_header
+
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
+SAMPLE = DATA / "evt3_sample.raw"
+REFERENCE = DATA / "evt3_sample.reference.npy"
+needs_sample = pytest.mark.skipif(not SAMPLE.exists(), reason=f"{SAMPLE} absent")
+
+
+def _random_events(n: int, seed: int = 0, t0: int = 0, width: int = 1280, height: int = 720) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = t0 + np.cumsum(rng.integers(0, 40, n))
+    return make_events(rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n), t)
+
+
+@needs_sample
+def test_evt3_sample_matches_reference_exactly():
+    ev, w, h = read_events(SAMPLE)
+    ref = np.load(REFERENCE)
+    assert (w, h) == (1280, 720)
+    assert ev.size == ref.size
+    for f in "xypt":
+        np.testing.assert_array_equal(ev[f], ref[f])
+
+
+@needs_sample
+@settings(max_examples=20, deadline=None)
+@given(cuts=st.lists(st.integers(min_value=0, max_value=600_000), max_size=12))
+def test_evt3_sample_any_chunk_boundaries(cuts):
+    raw = SAMPLE.read_bytes()
+    body = raw[parse_raw_header(raw).size:]
+    edges = sorted({0, len(body), *[min(c, len(body)) for c in cuts]})
+    dec = Evt3Decoder()
+    ev = np.concatenate([dec.feed(body[a:b]) for a, b in zip(edges[:-1], edges[1:])])
+    ref = np.load(REFERENCE)
+    np.testing.assert_array_equal(ev["t"], ref["t"])
+    np.testing.assert_array_equal(ev["x"], ref["x"])
+
+
+def test_evt3_time_high_repeat_keeps_time_low():
+    # TIME_HIGH 1, TIME_LOW 5, Y 3, X 7; TIME_HIGH 1 again, X 8 -> both at t = 4096 + 5
+    words = np.array([0x8001, 0x6005, 0x0003, 0x2007, 0x8001, 0x2808], dtype="<u2")
+    ev = Evt3Decoder().feed(words.tobytes())
+    assert ev["t"].tolist() == [4101, 4101]
+    assert ev["x"].tolist() == [7, 8] and ev["p"].tolist() == [0, 1]
+
+
+def test_evt3_vectors_expand_in_order_and_y_system_bit_is_ignored():
+    # Y=10 with system bit 11 set; base x 100 pol 1; VECT_12 mask 0b101; VECT_8 mask 0b1
+    words = np.array([0x8000, 0x6000, 0x0800 | 10, 0x3800 | 100, 0x4005, 0x5001], dtype="<u2")
+    ev = Evt3Decoder().feed(words.tobytes())
+    assert ev["x"].tolist() == [100, 102, 112]
+    assert set(ev["y"].tolist()) == {10} and set(ev["p"].tolist()) == {1}
+
+
+def test_evt3_24bit_wrap_is_extended():
+    ev = _random_events(3000, seed=1, t0=(1 << 24) - 20_000)
+    ev["t"] += np.arange(ev.size) * 20  # crosses the 2**24 µs wrap
+    dec = Evt3Decoder()
+    out = dec.feed(encode_evt3(ev))
+    np.testing.assert_array_equal(out["t"], ev["t"])
+    assert out["t"][-1] > 1 << 24
+
+
+def test_evt3_events_before_first_time_high_are_counted():
+    dec = Evt3Decoder()
+    out = dec.feed(np.array([0x0001, 0x2005, 0x8000, 0x2006], dtype="<u2").tobytes())
+    assert out["x"].tolist() == [6] and dec.skipped_words == 1
+
+
+def test_evt2_and_evt21_round_trip_with_odd_chunks_and_wrap():
+    ev = _random_events(5000, seed=2, t0=(1 << 34) - 50_000)
+    for encode, dec in ((encode_evt2, Evt2Decoder()), (encode_evt21, Evt21Decoder())):
+        data = encode(ev)
+        parts = [dec.feed(data[i:i + 13]) for i in range(0, len(data), 13)]
+        out = np.concatenate(parts)
+        np.testing.assert_array_equal(out, ev)
+
+
+def test_evt21_vector_mask_expands():
+    hi = (1 << 28) | (3 << 22) | (64 << 11) | 5  # POS, t low 3, x 64, y 5
+    words = np.array([(8 << 60) | (2 << 32), (hi << 32) | 0b1001], dtype="<u8")
+    out = Evt21Decoder().feed(words.tobytes())
+    assert out["x"].tolist() == [64, 67] and out["t"].tolist() == [2 * 64 + 3] * 2
+
+
+@pytest.mark.parametrize("name", ["a.raw", "b.dat", "c.aedat4", "d.csv", "e.npz", "f.npy"])
+def test_every_format_round_trips(tmp_path, name):
+    ev = _random_events(20_000, seed=3, t0=123_456_789)
+    path = tmp_path / name
+    write_events(path, ev, 1280, 720)
+    out, w, h = read_events(path)
+    np.testing.assert_array_equal(out, ev)
+    assert (w, h) == (1280, 720)
+
+
+@pytest.mark.parametrize("opts", [{"evt": 2}, {"evt": 3}])
+def test_raw_writer_versions_and_header(tmp_path, opts):
+    ev = _random_events(1000, seed=4)
+    write_events(tmp_path / "x.raw", ev, 640, 480, **opts)
+    with iter_events(tmp_path / "x.raw", chunk_events=100) as reader:
+        assert reader.header.version == f"{opts['evt']}.0" and (reader.width, reader.height) == (640, 480)
+        np.testing.assert_array_equal(reader.read_all(), ev)
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd", "none"])
+def test_aedat4_compressions(tmp_path, compression):
+    ev = _random_events(70_000, seed=5)
+    write_events(tmp_path / "x.aedat4", ev, 1280, 720, compression=compression)
+    out, w, h = read_events(tmp_path / "x.aedat4")
+    np.testing.assert_array_equal(out, ev)
+
+
+def test_aedat4_agrees_with_the_aedat_package(tmp_path):
+    aedat = pytest.importorskip("aedat")
+    ev = _random_events(5000, seed=6)
+    write_events(tmp_path / "x.aedat4", ev, 1280, 720, compression="zstd")
+    packets = [p["events"] for p in aedat.Decoder(tmp_path / "x.aedat4") if "events" in p]
+    theirs = np.concatenate(packets)
+    np.testing.assert_array_equal(theirs["t"], ev["t"])
+    np.testing.assert_array_equal(theirs["x"], ev["x"])
+
+
+def test_csv_with_and_without_header_and_column_order(tmp_path):
+    (tmp_path / "a.csv").write_text("1,2,1,100\n3,4,0,200\n")
+    (tmp_path / "b.csv").write_text("t,x,y,polarity\n100,1,2,1\n200,3,4,-1\n")
+    a, _, _ = read_events(tmp_path / "a.csv")
+    b, _, _ = read_events(tmp_path / "b.csv")
+    np.testing.assert_array_equal(a, b)
+    assert a["p"].tolist() == [1, 0] and a["t"].tolist() == [100, 200]
+
+
+def test_dat_32bit_wrap_is_extended(tmp_path):
+    ev = _random_events(1000, seed=7, t0=(1 << 32) - 10_000)
+    write_events(tmp_path / "x.dat", ev, 1280, 720)
+    out, _, _ = read_events(tmp_path / "x.dat")
+    np.testing.assert_array_equal(out["t"] - out["t"][0], ev["t"] - ev["t"][0])
+
+
+@pytest.mark.parametrize("name,content,match", [
+    ("x.foo", b"123", "unknown extension"),
+    ("x.raw", b"% evt 9.9\n% end\n\x00\x00", "EVT version"),
+    ("x.aedat4", b"#!AER-DAT4.0\r\n\x40\x00", "truncated"),
+    ("x.aedat4", b"hello", "magic"),
+    ("x.csv", b"1,2,1,100\n3,4,zero,200\n", "non-numeric"),
+    ("x.csv", b"1,2,1\n3,4,0\n", "4 columns"),
+    ("x.npz", b"not a zip", "numpy"),
+])
+def test_bad_files_give_clear_errors(tmp_path, name, content, match):
+    (tmp_path / name).write_bytes(content)
+    with pytest.raises(FormatError, match=match):
+        read_events(tmp_path / name)
+
+
+def test_truncated_aedat4_packet_is_an_error(tmp_path):
+    ev = _random_events(1000, seed=8)
+    write_events(tmp_path / "x.aedat4", ev, 1280, 720)
+    data = (tmp_path / "x.aedat4").read_bytes()
+    (tmp_path / "y.aedat4").write_bytes(data[:-100])
+    with pytest.raises(FormatError, match="truncated"):
+        read_events(tmp_path / "y.aedat4")
+
+
+def test_raw_garbage_outside_sensor_is_counted(tmp_path):
+    ev = _random_events(100, seed=9)
+    write_events(tmp_path / "x.raw", ev, 1280, 720)
+    data = bytearray((tmp_path / "x.raw").read_bytes())
+    data += np.array([0x2000 | 2000], dtype="<u2").tobytes()  # x = 2000 > width
+    (tmp_path / "x.raw").write_bytes(bytes(data))
+    with iter_events(tmp_path / "x.raw") as reader:
+        out = reader.read_all()
+        assert reader.invalid == 1 and out.size == 100
