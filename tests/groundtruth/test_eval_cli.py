@@ -1,0 +1,125 @@
+"""`arena eval` on files, as a user runs it (subprocess), and the readers' errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from groundtruth.metrics import (
+    CsvFormatError, TRACK_DTYPE, TRUTH_DTYPE, read_tracks_csv, read_truth_csv, write_tracks_csv,
+    write_truth_csv,
+)
+
+TRACK_HEADER = "t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events"
+
+
+def arena(*args, timeout=120):
+    return subprocess.run([sys.executable, "-m", "arena", *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.fixture()
+def files(tmp_path):
+    """Two robots on circles for 2 s; truth at 200 Hz, tracks at 100 Hz with a 1 cm offset and one
+    id switch on robot b at 1 s."""
+    truth, tracks = [], []
+    for k in range(400):
+        t = k * 5000
+        for r, (cx, phase) in {"zumo1": (0.6, 0.0), "zumo2": (1.2, 1.0)}.items():
+            a = phase + 0.46 / 0.3 * t * 1e-6
+            x, y = cx + 0.3 * np.cos(a), 0.9 + 0.3 * np.sin(a)
+            yaw = (a + np.pi / 2 + np.pi) % (2 * np.pi) - np.pi
+            truth.append((t, r, x, y, yaw, -0.46 * np.sin(a), 0.46 * np.cos(a)))
+            if k % 2 == 0:
+                tid = "1" if r == "zumo1" else ("2" if t < 1_000_000 else "5")
+                tracks.append((t, tid, "", x + 0.01, y, yaw + np.radians(3), np.nan, np.nan, np.nan,
+                               np.nan, "confirmed", 120))
+    tp, gp = tmp_path / "tracks.csv", tmp_path / "truth.csv"
+    write_tracks_csv(tp, np.array(tracks, dtype=TRACK_DTYPE))
+    write_truth_csv(gp, np.array(truth, dtype=TRUTH_DTYPE))
+    return tp, gp
+
+
+def test_csv_round_trip(files):
+    tp, gp = files
+    tr = read_tracks_csv(tp)
+    gt = read_truth_csv(gp)
+    assert len(tr) == 400 and len(gt) == 800
+    assert set(tr["track_id"]) == {"1", "2", "5"} and tr["n_events"][0] == 120
+    assert np.isnan(tr["vx_mps"]).all() and set(gt["robot"]) == {"zumo1", "zumo2"}
+
+
+def test_eval_prints_table_and_writes_json_and_report(files, tmp_path):
+    tp, gp = files
+    out_json, rep = tmp_path / "s.json", tmp_path / "rep"
+    r = arena("eval", "--tracks", tp, "--truth", gp, "--json", out_json, "--report", rep)
+    assert r.returncode == 0, r.stderr
+    assert "MOTA" in r.stdout and "IDF1" in r.stdout and "zumo2" in r.stdout
+    s = json.loads(out_json.read_text())["scores"]
+    assert s["id_switches"] == 1 and s["n_fp"] == 0 and s["n_fn"] == 0
+    assert s["mae_cm"] == pytest.approx(1.0, abs=1e-3)
+    assert s["heading_mae_deg"] == pytest.approx(3.0, abs=1e-3)
+    assert s["mota"] == pytest.approx(1 - 1 / s["n_gt"])
+    assert s["per_robot"]["zumo2"]["id_switches"] == 1
+    md = (rep / "report.md").read_text()
+    assert "![trajectories](trajectories.png)" in md and "| MOTA |" in md
+    for png in ("trajectories.png", "errors.png"):
+        data = (rep / png).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+    assert json.loads((rep / "scores.json").read_text())["scores"]["id_switches"] == 1
+
+
+def test_eval_gate_option_changes_matching(files):
+    tp, gp = files
+    r = arena("eval", "--tracks", tp, "--truth", gp, "--gate-cm", "0.5")
+    assert r.returncode == 0, r.stderr
+    assert "recall             0.0000" in r.stdout  # every track is 1 cm off
+
+
+@pytest.mark.parametrize("case, message", [
+    ("missing", "not found"),
+    ("empty", "is empty"),
+    ("header", "header lacks column(s) x_m, y_m"),
+    ("value", "line 2, column x_m: cannot read 'abc'"),
+])
+def test_eval_bad_input_gives_a_clear_error(files, tmp_path, case, message):
+    tp, gp = files
+    bad = tmp_path / "bad.csv"
+    if case == "empty":
+        bad.write_text("")
+    elif case == "header":
+        bad.write_text("t_us,track_id,xx,yy\n0,1,0.1,0.2\n")
+    elif case == "value":
+        bad.write_text(TRACK_HEADER + "\n0,1,,abc,0.5,,,,,,,\n")
+    r = arena("eval", "--tracks", bad, "--truth", gp)
+    assert r.returncode == 2
+    assert message in r.stderr and "Traceback" not in r.stderr
+
+
+def test_eval_truth_without_rows_is_an_error(files, tmp_path):
+    tp, _ = files
+    gp = tmp_path / "t.csv"
+    gp.write_text("t_us,robot,x_m,y_m,yaw_rad\n")
+    r = arena("eval", "--tracks", tp, "--truth", gp)
+    assert r.returncode == 2 and "no rows" in r.stderr
+
+
+def test_readers_raise_one_error_type(tmp_path):
+    p = tmp_path / "g.csv"
+    p.write_text("t_us,robot,x_m,y_m\n0,,0.1,0.2\n")
+    with pytest.raises(CsvFormatError, match="empty robot name"):
+        read_truth_csv(p)
+    with pytest.raises(CsvFormatError, match="not found"):
+        read_tracks_csv(tmp_path / "nope.csv")
+
+
+def test_webcam_ground_truth_format_is_accepted(tmp_path):
+    p = tmp_path / "gt.csv"
+    p.write_text("t_us,robot,x_m,y_m,yaw_rad,u_px,v_px,detector\n"
+                 "0,zumo1,0.5,0.5,0.1,320,240,aruco\n41667,zumo1,0.51,0.5,,321,240,hsv\n")
+    gt = read_truth_csv(p)
+    assert len(gt) == 2 and np.isnan(gt["yaw_rad"][1]) and gt["x_m"][1] == pytest.approx(0.51)
