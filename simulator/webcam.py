@@ -248,7 +248,7 @@ class WebcamModel:
             q = 0.5 * self.marker_size_m * 8 / 6      # marker plus a one-cell white quiet zone
             # image top edge = robot front (+x body), image left = robot left (+y body)
             inner = ((q, q), (q, -q), (-q, -q), (-q, q))
-        else:                                         # front mark: a dark bar across the front
+        else:                                         # front mark: a bar across the front
             inner = ((hl - 0.008, hw - 0.015), (hl - 0.030, hw - 0.015),
                      (hl - 0.030, -hw + 0.015), (hl - 0.008, -hw + 0.015))
         body = np.array(((hl, hw), (-hl, hw), (-hl, -hw), (hl, -hw)) * 2 + inner)
@@ -275,7 +275,8 @@ class WebcamModel:
             cv2.warpPerspective(canvas, h, (img.shape[1], img.shape[0]), dst=img,
                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_TRANSPARENT)
         else:
-            g = 25 * gain
+            # dark mark on bright shells, white mark on dark shells
+            g = (25 if max(spec.color_rgb) > 90 else 235) * gain
             cv2.fillConvexPoly(img, np.round(inner_px * sc).astype(np.int32), (g, g, g),
                                cv2.LINE_AA, 4)
 
