@@ -1,0 +1,488 @@
+"""DVS (event camera) pixel model of the ceiling camera looking at the arena.
+
+Per pixel (after v2e, Hu et al. 2021, and ESIM, Rebecq et al. 2018):
+
+* the scene is rendered as irradiance ``I = illumination * reflectance`` (see
+  :mod:`simulator.camera`) and converted to log intensity ``L = ln(I + dark_current)``;
+* a photoreceptor first-order low-pass on ``L`` whose cutoff scales with the irradiance
+  (``cutoff_hz * (I + dark_current)``, at least ``min_cutoff_hz``): dark shells and dim
+  light respond slower, smearing the trailing edge;
+* a memorised level per pixel; when the low-passed level departs from it by the pixel's
+  ON or OFF threshold (``threshold_on/off`` with per-pixel Gaussian mismatch
+  ``threshold_sigma``) the pixel fires one event per threshold crossed, with timestamps
+  interpolated linearly inside the internal time step (µs) and spaced by at least the
+  refractory period; the memory advances by one threshold per event fired;
+* background activity: Poisson events at ``noise_rate_hz`` per pixel with uniform times
+  over the whole sensor, plus a few hot pixels firing at ``hot_rate_hz``; labelled noise.
+
+Performance: only pixels near robots change, so the model runs only inside regions of
+interest (the dilated union of each robot's footprint over the last few photoreceptor time
+constants); the memory of every other pixel stays as it is. With ``flicker_hz > 0`` the
+whole sensor changes and the whole frame is simulated (slow; not real time).
+
+Sensor frame: x = column u, y = row v, px; timestamps in µs of the sensor clock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from arena.events import EVENT_DTYPE
+from simulator.camera import ILLUMINATION, CeilingCamera, robot_appearance
+from simulator.world import RobotSpec
+
+#: Default background-activity rate per pixel by lighting level, Hz (more in the dark).
+NOISE_RATE_HZ = {"full": 0.1, "dimmed": 0.3, "dark": 1.0}
+
+
+@dataclass
+class DvsParams:
+    """Parameters of the pixel model (defaults are typical of a Prophesee Gen4 / v2e).
+
+    Attributes:
+        threshold_on, threshold_off: nominal contrast thresholds, ln units.
+        threshold_sigma: per-pixel threshold mismatch (Gaussian sigma), ln units.
+        refractory_us: minimum time between two events of one pixel, µs.
+        cutoff_hz: photoreceptor 3 dB cutoff at irradiance 1 (white under full light), Hz.
+        min_cutoff_hz: floor of the photoreceptor cutoff, Hz.
+        dark_current: irradiance-equivalent dark current (relative), limits dark contrast.
+        noise_rate_hz: background activity per pixel, Hz; None = by lighting (full 0.1,
+            dimmed 0.3, dark 1.0).
+        noise_on_fraction: fraction of background events that are ON.
+        hot_pixels: number of hot pixels; hot_rate_hz: their event rate, Hz.
+        step_us: internal time step, µs (<= 1000, i.e. >= 1 kHz).
+        flicker_hz: ceiling light flicker (0 = off, 100 or 120 typical), Hz.
+        flicker_depth: relative modulation depth of the flicker.
+    """
+
+    threshold_on: float = 0.2
+    threshold_off: float = 0.2
+    threshold_sigma: float = 0.03
+    refractory_us: int = 200
+    cutoff_hz: float = 400.0
+    min_cutoff_hz: float = 5.0
+    dark_current: float = 0.003
+    noise_rate_hz: float | None = None
+    noise_on_fraction: float = 0.5
+    hot_pixels: int = 5
+    hot_rate_hz: float = 50.0
+    step_us: int = 1000
+    flicker_hz: float = 0.0
+    flicker_depth: float = 0.2
+
+    def validate(self) -> None:
+        """Raise ValueError with a clear message on out-of-range parameters."""
+        checks = [
+            (self.threshold_on > 0 and self.threshold_off > 0, "thresholds must be > 0"),
+            (self.threshold_sigma >= 0, "threshold_sigma must be >= 0"),
+            (self.refractory_us >= 0, "refractory_us must be >= 0"),
+            (self.cutoff_hz > 0 and self.min_cutoff_hz > 0, "cutoff frequencies must be > 0"),
+            (self.noise_rate_hz is None or self.noise_rate_hz >= 0, "noise_rate_hz must be >= 0"),
+            (0.0 <= self.noise_on_fraction <= 1.0, "noise_on_fraction must be in [0, 1]"),
+            (self.hot_pixels >= 0 and self.hot_rate_hz >= 0, "hot pixel count/rate must be >= 0"),
+            (1 <= self.step_us <= 1000, "step_us must be in 1..1000 (internal rate >= 1 kHz)"),
+            (self.flicker_hz >= 0 and 0 <= self.flicker_depth < 1, "flicker must be >= 0 Hz, depth in [0, 1)"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ValueError(f"DvsParams: {msg}")
+
+
+@njit(cache=True)
+def _reflectance(u, v, ax, ay, bg, state, app, markers, members, n_members, pix_m):
+    """Reflectance seen by pixel (u, v): background with the robots of ``members`` on top."""
+    x = ax[v, u]
+    y = ay[v, u]
+    refl = bg[v, u]
+    for j in range(n_members):
+        i = members[j]
+        dx = x - state[i, 0]
+        dy = y - state[i, 1]
+        c = state[i, 2]
+        s = state[i, 3]
+        bx = c * dx + s * dy
+        by = -s * dx + c * dy
+        hl = app[i, 0]
+        hw = app[i, 1]
+        cx = (hl - abs(bx)) / pix_m + 0.5
+        if cx <= 0.0:
+            continue
+        cy = (hw - abs(by)) / pix_m + 0.5
+        if cy <= 0.0:
+            continue
+        cov = min(cx, 1.0) * min(cy, 1.0)
+        mh = app[i, 5]
+        if abs(by) > hw - app[i, 4]:
+            inner = app[i, 3]
+        elif mh > 0.0 and abs(bx) < mh and abs(by) < mh:
+            row = min(int((mh - bx) / (2.0 * mh) * 6.0), 5)
+            col = min(int((mh - by) / (2.0 * mh) * 6.0), 5)
+            inner = markers[i, row, col]
+        else:
+            inner = app[i, 2]
+        refl = refl * (1.0 - cov) + inner * cov
+    return refl
+
+
+@njit(cache=True)
+def _merge_boxes(boxes, owner):
+    """Merge overlapping boxes in place; ``owner[i]`` = index of the box robot i ends in.
+    Returns the number of boxes left (compacted to the front)."""
+    n = boxes.shape[0]
+    alive = np.ones(n, dtype=np.bool_)
+    for i in range(n):
+        owner[i] = i
+    changed = True
+    while changed:
+        changed = False
+        for i in range(n):
+            if not alive[i]:
+                continue
+            for j in range(i + 1, n):
+                if not alive[j]:
+                    continue
+                if (boxes[i, 0] < boxes[j, 2] and boxes[j, 0] < boxes[i, 2]
+                        and boxes[i, 1] < boxes[j, 3] and boxes[j, 1] < boxes[i, 3]):
+                    boxes[i, 0] = min(boxes[i, 0], boxes[j, 0])
+                    boxes[i, 1] = min(boxes[i, 1], boxes[j, 1])
+                    boxes[i, 2] = max(boxes[i, 2], boxes[j, 2])
+                    boxes[i, 3] = max(boxes[i, 3], boxes[j, 3])
+                    alive[j] = False
+                    for r in range(n):
+                        if owner[r] == j:
+                            owner[r] = i
+                    changed = True
+    m = 0
+    remap = np.full(n, -1, dtype=np.int64)
+    for i in range(n):
+        if alive[i]:
+            boxes[m] = boxes[i]
+            remap[i] = m
+            m += 1
+    for r in range(n):
+        owner[r] = remap[owner[r]]
+    return m
+
+
+@njit(cache=True)
+def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
+               ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
+               min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,
+               init, ox, oy, op, ot):
+    """Run the pixel model over the steps ``t_seq`` (µs, increasing, after ``t_start``).
+
+    ``poses`` (k, n, 3) are the robot poses at each step, ``cur_boxes`` (k, n, 4) their
+    footprint boxes (px); ``hist`` (n, K, 4) is the ring buffer of recent footprint boxes
+    whose union per robot is simulated. Stops early when the output buffers could overflow.
+    Returns (steps done, events written, new hist_i).
+    """
+    k_steps = poses.shape[0]
+    n_rob = poses.shape[1]
+    K = hist.shape[1]
+    cap = ox.shape[0]
+    n = 0
+    state = np.zeros((max(n_rob, 1), 4))
+    boxes = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
+    owner = np.zeros(max(n_rob, 1), dtype=np.int64)
+    members = np.zeros((max(n_rob, 1), max(n_rob, 1)), dtype=np.int64)
+    n_members = np.zeros(max(n_rob, 1), dtype=np.int64)
+    t_prev = t_start
+    done = 0
+    static_light = not full_frame
+    for s in range(k_steps):
+        dt_us = t_seq[s] - t_prev
+        for r in range(n_rob):
+            state[r, 0] = poses[s, r, 0]
+            state[r, 1] = poses[s, r, 1]
+            state[r, 2] = math.cos(poses[s, r, 2])
+            state[r, 3] = math.sin(poses[s, r, 2])
+        if full_frame or init:
+            m = 1
+            boxes[0, 0] = 0
+            boxes[0, 1] = 0
+            boxes[0, 2] = width
+            boxes[0, 3] = height
+            n_members[0] = n_rob
+            for r in range(n_rob):
+                members[0, r] = r
+        else:
+            for r in range(n_rob):
+                for c in range(4):
+                    hist[r, hist_i % K, c] = cur_boxes[s, r, c]
+            hist_i += 1
+            for r in range(n_rob):
+                b0 = hist[r, 0, 0]
+                b1 = hist[r, 0, 1]
+                b2 = hist[r, 0, 2]
+                b3 = hist[r, 0, 3]
+                for q in range(1, K):
+                    b0 = min(b0, hist[r, q, 0])
+                    b1 = min(b1, hist[r, q, 1])
+                    b2 = max(b2, hist[r, q, 2])
+                    b3 = max(b3, hist[r, q, 3])
+                boxes[r, 0] = min(max(b0, 0), width)
+                boxes[r, 1] = min(max(b1, 0), height)
+                boxes[r, 2] = min(max(b2, 0), width)
+                boxes[r, 3] = min(max(b3, 0), height)
+            m = _merge_boxes(boxes[:n_rob], owner[:n_rob]) if n_rob > 0 else 0
+            n_members[:] = 0
+            for r in range(n_rob):
+                b = owner[r]
+                members[b, n_members[b]] = r
+                n_members[b] += 1
+        max_per_px = max_refr_count
+        if refr_us > 0:
+            max_per_px = min(max_refr_count, dt_us // refr_us + 1)
+        area = 0
+        for b in range(m):
+            area += max(boxes[b, 2] - boxes[b, 0], 0) * max(boxes[b, 3] - boxes[b, 1], 0)
+        if not init and n + area * max_per_px > cap:
+            return done, n, hist_i
+        dt_s = dt_us * 1e-6
+        illum = illum_seq[s]
+        for b in range(m):
+            mem = members[b]
+            nm = n_members[b]
+            for v in range(boxes[b, 1], boxes[b, 3]):
+                for u in range(boxes[b, 0], boxes[b, 2]):
+                    refl = _reflectance(u, v, ax, ay, bg, state, app, markers, mem, nm, pix_m)
+                    if static_light and refl == bg[v, u]:
+                        target = bg_log[v, u]
+                        irr = illum * refl
+                    else:
+                        irr = illum * refl
+                        target = math.log(irr + dark)
+                    if init:
+                        llp[v, u] = target
+                        lmem[v, u] = target
+                        continue
+                    old = llp[v, u]
+                    new = old
+                    if abs(target - old) > 1e-7:
+                        f = max(cutoff_hz * (irr + dark), min_cutoff_hz)
+                        new = old + (target - old) * (1.0 - math.exp(-2.0 * math.pi * f * dt_s))
+                        llp[v, u] = new
+                    ref = lmem[v, u]
+                    d_new = new - ref
+                    if d_new >= thr_on[v, u]:
+                        thr = thr_on[v, u]
+                        sign = 1.0
+                    elif d_new <= -thr_off[v, u]:
+                        thr = thr_off[v, u]
+                        sign = -1.0
+                    else:
+                        continue
+                    d_old = old - ref
+                    span = d_new - d_old
+                    tl = t_last[v, u]
+                    k = 0
+                    while k < max_per_px:
+                        level = sign * (k + 1) * thr
+                        if abs(level) > abs(d_new):
+                            break
+                        frac = (level - d_old) / span if span != 0.0 else 1.0
+                        frac = min(max(frac, 0.0), 1.0)
+                        te = t_prev + max(1, int(frac * dt_us + 0.5))
+                        if te < tl + refr_us:
+                            te = tl + refr_us
+                        if te > t_prev + dt_us:
+                            break
+                        ox[n] = u
+                        oy[n] = v
+                        op[n] = 1 if sign > 0 else 0
+                        ot[n] = te
+                        n += 1
+                        tl = te
+                        k += 1
+                    if k > 0:
+                        lmem[v, u] = ref + sign * k * thr
+                        t_last[v, u] = tl
+        t_prev = t_seq[s]
+        done += 1
+    return done, n, hist_i
+
+
+class DvsSensor:
+    """The event camera: renders the arena and runs the pixel model.
+
+    Args:
+        camera: geometry and static scene (:class:`simulator.camera.CeilingCamera`).
+        robots: the robots to draw (their footprint, colour and marker).
+        lighting: ``"full"``, ``"dimmed"`` or ``"dark"``.
+        params: pixel-model parameters (:class:`DvsParams`).
+        seed: seed of threshold mismatch, hot pixels and noise.
+
+    Use: ``reset(poses, t_us)`` once, then ``advance(poses_seq, t_seq)`` with the robot
+    poses (k, n, 3) (x m, y m, yaw rad, arena frame) at k increasing times ``t_seq`` (µs,
+    consecutive ones at most ``params.step_us`` apart); it returns the events of
+    ``(t_prev, t_seq[-1]]`` sorted by time and a signal/noise label per event.
+    """
+
+    def __init__(self, camera: CeilingCamera, robots: list[RobotSpec], lighting: str = "full",
+                 params: DvsParams | None = None, seed: int = 0):
+        if lighting not in ILLUMINATION:
+            raise ValueError(f"lighting must be one of {tuple(ILLUMINATION)}, got {lighting!r}")
+        self.params = params or DvsParams()
+        self.params.validate()
+        self.camera = camera
+        self.lighting = lighting
+        self.width, self.height = camera.width, camera.height
+        p = self.params
+        self.noise_rate_hz = NOISE_RATE_HZ[lighting] if p.noise_rate_hz is None else p.noise_rate_hz
+        self._rng = np.random.default_rng(seed)
+        rng = self._rng
+        h, w = self.height, self.width
+        self._thr_on = np.maximum(rng.normal(p.threshold_on, p.threshold_sigma, (h, w)),
+                                  0.25 * p.threshold_on).astype(np.float32)
+        self._thr_off = np.maximum(rng.normal(p.threshold_off, p.threshold_sigma, (h, w)),
+                                   0.25 * p.threshold_off).astype(np.float32)
+        self._lmem = np.zeros((h, w), dtype=np.float32)
+        self._llp = np.zeros((h, w), dtype=np.float32)
+        self._t_last = np.full((h, w), -(10 ** 12), dtype=np.int64)
+        hot = rng.choice(h * w, size=min(p.hot_pixels, h * w), replace=False)
+        #: hot pixel addresses (k, 2): u, v
+        self.hot_pixels = np.column_stack([hot % w, hot // w]).astype(np.int64)
+        self._n = len(robots)
+        app, markers = robot_appearance(robots)
+        self._app = app if self._n else np.zeros((1, 6))
+        self._markers = markers if self._n else np.ones((1, 6, 6), np.float32)
+        self._illum0 = ILLUMINATION[lighting]
+        self._bg_log = np.log(self._illum0 * camera.background + p.dark_current).astype(np.float32)
+        # ROI: footprint radius in px, and how long a pixel stays simulated after a robot left
+        # (4 photoreceptor time constants of the darkest part of a robot, at most 150 ms)
+        self._radius_px = np.hypot(app[:, 0], app[:, 1]) / camera.pixel_m * 1.1 + 3.0
+        tau_max = 1.0 / (2 * math.pi * max(p.min_cutoff_hz, p.cutoff_hz * (
+            self._illum0 * 0.04 + p.dark_current)))
+        self.keep_s = min(0.15, max(0.02, 4.0 * tau_max))
+        self._keep_steps = max(1, int(math.ceil(self.keep_s * 1e6 / p.step_us)))
+        self._hist = np.zeros((self._n, self._keep_steps, 4), dtype=np.int64)
+        self._hist_i = 0
+        self._buf = self._alloc(1 << 16)
+        self._ready = False
+        #: time of the last update, µs
+        self.t_us = 0
+
+    # ------------------------------------------------------------------ public
+    def reset(self, poses: np.ndarray, t_us: int = 0) -> None:
+        """Set every pixel's memory to the scene at ``poses`` (n, 3) at ``t_us`` (no events)."""
+        poses = self._check_poses(poses)[None]
+        self._llp[:] = self._bg_log
+        self._lmem[:] = self._bg_log
+        self._t_last[:] = -(10 ** 12)
+        self._hist[:] = self._robot_boxes(poses)[0][:, None, :]
+        self._hist_i = 0
+        self._kernel(poses, np.array([int(t_us)], np.int64), int(t_us), init=True)
+        self.t_us = int(t_us)
+        self._ready = True
+
+    def advance(self, poses_seq: np.ndarray, t_seq) -> tuple[np.ndarray, np.ndarray]:
+        """Advance through times ``t_seq`` (µs) with robots at ``poses_seq`` (k, n, 3) (or
+        one time and (n, 3) poses). Returns ``(events, is_signal)``: an
+        :data:`arena.events.EVENT_DTYPE` array of ``(t_prev, t_seq[-1]]`` sorted by ``t``,
+        and True for events caused by scene change (False: background activity, hot pixels).
+        """
+        if not self._ready:
+            raise RuntimeError("DvsSensor.reset(poses) must be called before advance()")
+        t_seq = np.atleast_1d(np.asarray(t_seq, dtype=np.int64))
+        poses_seq = np.asarray(poses_seq, dtype=float).reshape(len(t_seq), self._n, 3)
+        steps = np.diff(np.concatenate([[self.t_us], t_seq]))
+        if len(t_seq) == 0 or np.any(steps <= 0) or np.any(steps > self.params.step_us):
+            raise ValueError(f"times must increase from {self.t_us} µs in steps of 1.."
+                             f"{self.params.step_us} µs")
+        t0 = self.t_us
+        sig = self._kernel(poses_seq, t_seq, t0, init=False)
+        noise = self._noise(t0, int(t_seq[-1]) - t0)
+        self.t_us = int(t_seq[-1])
+        ev = np.concatenate([sig, noise])
+        is_sig = np.zeros(len(ev), dtype=bool)
+        is_sig[:len(sig)] = True
+        if len(ev) > 1:
+            order = np.argsort(ev["t"], kind="stable")
+            ev, is_sig = ev[order], is_sig[order]
+        return ev, is_sig
+
+    # ------------------------------------------------------------------ internals
+    @staticmethod
+    def _alloc(cap: int):
+        return (np.empty(cap, np.uint16), np.empty(cap, np.uint16),
+                np.empty(cap, np.uint8), np.empty(cap, np.int64))
+
+    def _check_poses(self, poses) -> np.ndarray:
+        poses = np.asarray(poses, dtype=float)
+        if poses.size != 3 * self._n:
+            raise ValueError(f"expected poses for {self._n} robots, got shape {poses.shape}")
+        return poses.reshape(self._n, 3)
+
+    def _illum(self, t_us: np.ndarray) -> np.ndarray:
+        p = self.params
+        t = np.asarray(t_us, dtype=float)
+        if p.flicker_hz > 0:
+            # rectified mains: intensity ripple at flicker_hz
+            return self._illum0 * (1.0 + p.flicker_depth * np.sin(2 * math.pi * p.flicker_hz * t * 1e-6))
+        return np.full(t.shape, self._illum0)
+
+    def _robot_boxes(self, poses_seq: np.ndarray) -> np.ndarray:
+        """Footprint boxes (k, n, 4) (u0, v0, u1, v1; px, end exclusive) of poses (k, n, 3)."""
+        k = poses_seq.shape[0]
+        if self._n == 0:
+            return np.zeros((k, 0, 4), dtype=np.int64)
+        uv = self.camera.to_pixels(poses_seq[:, :, :2].reshape(-1, 2)).reshape(k, self._n, 2)
+        r = self._radius_px[None, :]
+        return np.stack([np.floor(uv[..., 0] - r), np.floor(uv[..., 1] - r),
+                         np.ceil(uv[..., 0] + r) + 1, np.ceil(uv[..., 1] + r) + 1],
+                        axis=-1).astype(np.int64)
+
+    def _kernel(self, poses_seq, t_seq, t0, init) -> np.ndarray:
+        p = self.params
+        cur = self._robot_boxes(poses_seq)
+        illum = self._illum(t_seq)
+        max_count = 16 if p.refractory_us == 0 else p.step_us // p.refractory_us + 1
+        full = p.flicker_hz > 0
+        out = []
+        while True:
+            ox, oy, op, ot = self._buf
+            done, n, self._hist_i = _dvs_block(
+                poses_seq, t_seq, t0, cur, self._hist, self._hist_i, full, self.width,
+                self.height, self.camera.ax, self.camera.ay, self.camera.background,
+                self._bg_log, self._app, self._markers, self.camera.pixel_m, illum,
+                p.dark_current, p.cutoff_hz, p.min_cutoff_hz, self._lmem, self._llp,
+                self._thr_on, self._thr_off, self._t_last, int(p.refractory_us), int(max_count),
+                init, ox, oy, op, ot)
+            ev = np.empty(n, dtype=EVENT_DTYPE)
+            ev["x"], ev["y"], ev["p"], ev["t"] = ox[:n], oy[:n], op[:n], ot[:n]
+            out.append(ev)
+            if done == len(t_seq):
+                break
+            if done == 0:   # one step needs more room than we have: grow
+                self._buf = self._alloc(2 * len(ox) if n else max(2 * len(ox), 1 << 20))
+                if len(self._buf[0]) > (1 << 27):
+                    raise MemoryError("DVS step needs more than 2^27 events of buffer")
+            t0 = int(t_seq[done - 1]) if done else t0
+            poses_seq, t_seq, cur, illum = poses_seq[done:], t_seq[done:], cur[done:], illum[done:]
+        return out[0] if len(out) == 1 else np.concatenate(out)
+
+    def _noise(self, t0: int, dt: int) -> np.ndarray:
+        """Background activity and hot-pixel events in (t0, t0 + dt] µs."""
+        rng = self._rng
+        npix = self.width * self.height
+        k = int(rng.poisson(self.noise_rate_hz * npix * dt * 1e-6))
+        hot = self.hot_pixels
+        kh = rng.poisson(self.params.hot_rate_hz * dt * 1e-6, len(hot))
+        nh = int(kh.sum())
+        ev = np.empty(k + nh, dtype=EVENT_DTYPE)
+        if k + nh == 0:
+            return ev
+        idx = rng.integers(0, npix, k)
+        ev["x"][:k] = idx % self.width
+        ev["y"][:k] = idx // self.width
+        ev["p"][:k] = rng.random(k) < self.params.noise_on_fraction
+        which = np.repeat(np.arange(len(hot)), kh)
+        ev["x"][k:] = hot[which, 0]
+        ev["y"][k:] = hot[which, 1]
+        ev["p"][k:] = rng.integers(0, 2, nh)
+        ev["t"] = t0 + 1 + rng.integers(0, dt, k + nh)
+        return ev
