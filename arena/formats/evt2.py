@@ -183,8 +183,19 @@ class Evt21Decoder(_WordDecoder):
         return _pack(xs, ys, ps, ts, n)
 
 
+def _wrap_prefix(epochs: int) -> bytes:
+    """TIME_HIGH words that make a decoder start ``epochs`` 34-bit wraps in (absolute time kept)."""
+    if epochs <= 0:
+        return b""
+    pairs = np.tile(np.array([0x8FFFFFFF, 0x80000000], "<u4"), epochs)
+    return np.concatenate([np.array([0x80000000], "<u4"), pairs]).tobytes()
+
+
 class Evt2Encoder:
-    """Streaming EVT 2.0 encoder: ``encode(events) -> bytes`` (t non-decreasing, µs)."""
+    """Streaming EVT 2.0 encoder: ``encode(events) -> bytes`` (t non-decreasing, µs).
+
+    Times beyond 34 bits at the first event are kept by a prefix of TIME_HIGH words
+    (one max/zero pair per wrap); later wraps are the decoder's usual wrap extension."""
 
     def __init__(self) -> None:
         self._last_th = -1
@@ -207,8 +218,9 @@ class Evt2Encoder:
         pos = np.arange(events.size) + np.cumsum(new_th)
         out[pos] = cd
         out[pos[new_th] - 1] = (0x8 << 28) | th[new_th].astype(np.uint32)
+        prefix = b"" if self._last_th >= 0 else _wrap_prefix(int(t[0]) >> 34)
         self._last_th = int(th[-1])
-        return out.astype("<u4").tobytes()
+        return prefix + out.astype("<u4").tobytes()
 
 
 def encode_evt2(events: np.ndarray) -> bytes:

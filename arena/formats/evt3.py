@@ -180,11 +180,22 @@ def _encode(xs, ys, ps, ts, state, out):
         t = ts[i]
         th = (t >> 12) & 0xFFF
         tl = t & 0xFFF
-        if not started or th != last_th or (t >> 24) != state[4]:
+        epoch = t >> 24
+        if not started or th != last_th or epoch != state[4]:
+            # walk the decoder through the 24-bit wraps since the last word (or since 0):
+            # each TIME_HIGH 0xFFF then 0x000 pair makes it add one wrap
+            for _ in range(epoch - state[4]):
+                if not started:
+                    out[n] = 0x8000
+                    n += 1
+                    started = 1
+                out[n] = 0x8FFF
+                out[n + 1] = 0x8000
+                n += 2
             out[n] = 0x8000 | th
             n += 1
             last_th = th
-            state[4] = t >> 24
+            state[4] = epoch
             last_tl = -1
         if tl != last_tl:
             out[n] = 0x6000 | tl
@@ -230,8 +241,9 @@ def _encode(xs, ys, ps, ts, state, out):
 class Evt3Encoder:
     """Streaming EVT 3.0 encoder: ``encode(events) -> bytes``.
 
-    Emits TIME_HIGH on every change of time bits 23..12 (and after a 24-bit
-    wrap), TIME_LOW on change, EVT_ADDR_Y on change of row, and VECT_BASE_X +
+    Emits TIME_HIGH on every change of time bits 23..12; absolute times beyond
+    24 bits are kept by emitting one TIME_HIGH 0xFFF, 0x000 pair per wrap (at the
+    start and across gaps), which every wrap-extending decoder replays; TIME_LOW on change, EVT_ADDR_Y on change of row, and VECT_BASE_X +
     VECT_12 for runs of >= 3 events of one row, time and polarity, else
     EVT_ADDR_X. Times must be non-decreasing and >= 0; x, y < 2048.
     """
@@ -243,7 +255,8 @@ class Evt3Encoder:
         if events.size == 0:
             return b""
         _check_encodable(events, 2048, 2048)
-        out = np.empty(events.size * 4 + 8, dtype=np.uint16)
+        wraps = (int(events["t"][-1]) >> 24) - int(self._state[4])
+        out = np.empty(events.size * 4 + 2 * wraps + 8, dtype=np.uint16)
         n = _encode(events["x"].astype(np.int64), events["y"].astype(np.int64),
                     events["p"].astype(np.int64), events["t"].astype(np.int64), self._state, out)
         return out[:n].tobytes()

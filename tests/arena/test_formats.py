@@ -111,7 +111,7 @@ def test_every_format_round_trips(tmp_path, name):
 
 @pytest.mark.parametrize("opts", [{"evt": 2}, {"evt": 3}])
 def test_raw_writer_versions_and_header(tmp_path, opts):
-    ev = _random_events(1000, seed=4)
+    ev = _random_events(1000, seed=4, width=640, height=480)
     write_events(tmp_path / "x.raw", ev, 640, 480, **opts)
     with iter_events(tmp_path / "x.raw", chunk_events=100) as reader:
         assert reader.header.version == f"{opts['evt']}.0" and (reader.width, reader.height) == (640, 480)

@@ -1,0 +1,100 @@
+"""Event-window codec: lossless round trips (property based), lossy ms mode, size on the
+shared sample, and clear errors on corrupt or mismatched payloads."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from arena.codec import CODECS, DEFAULT_CODEC, LOSSY_CODEC, CodecError, decode, encode
+from arena.events import as_events, make_events
+
+REFERENCE = Path(__file__).resolve().parents[3] / "shared" / "data" / "evt3_sample.reference.npy"
+
+
+@st.composite
+def event_arrays(draw):
+    n = draw(st.integers(0, 300))
+    xs = draw(arrays(np.uint16, n, elements=st.integers(0, 2047)))
+    ys = draw(arrays(np.uint16, n, elements=st.integers(0, 65535)))
+    ps = draw(arrays(np.uint8, n, elements=st.integers(0, 1)))
+    ts = draw(arrays(np.int64, n, elements=st.integers(-(1 << 62), 1 << 62)))
+    if draw(st.booleans()):
+        ts = np.sort(ts % 100_000)
+    return make_events(xs, ys, ps, ts)
+
+
+@settings(max_examples=200, deadline=None)
+@given(ev=event_arrays(), ref=st.one_of(st.none(), st.integers(-(1 << 40), 1 << 40)))
+def test_lossless_round_trip_any_events(ev, ref):
+    data = encode(ev, DEFAULT_CODEC, t_ref_us=ref)
+    out = decode(DEFAULT_CODEC, data, ev.size)
+    np.testing.assert_array_equal(out, ev)
+
+
+@settings(max_examples=50, deadline=None)
+@given(ev=event_arrays())
+def test_lossy_keeps_xyp_and_floors_time_to_1ms(ev):
+    ev = ev[np.argsort(ev["t"], kind="stable")]
+    ev["t"] = np.abs(ev["t"]) % 10**9
+    out = decode(LOSSY_CODEC, encode(ev, LOSSY_CODEC, t_ref_us=0), ev.size)
+    np.testing.assert_array_equal(out[["x", "y", "p"]], ev[["x", "y", "p"]])
+    np.testing.assert_array_equal(out["t"], ev["t"] // 1000 * 1000)
+
+
+def test_runs_of_a_row_are_coded_compactly():
+    x = np.arange(0, 1200, 3)
+    ev = make_events(x, np.full(x.size, 7), np.ones(x.size), np.full(x.size, 10_000))
+    assert len(encode(ev)) < 0.3 * ev.size + 60
+
+
+@pytest.mark.skipif(not REFERENCE.exists(), reason=f"{REFERENCE} absent")
+def test_sample_is_at_most_1_6_bytes_per_event():
+    ev = as_events(np.load(REFERENCE))
+    data = encode(ev)
+    assert len(data) / ev.size <= 1.6
+    np.testing.assert_array_equal(decode(DEFAULT_CODEC, data, ev.size), ev)
+
+
+def test_all_codecs_round_trip_and_unknown_codec_is_refused():
+    ev = make_events([1, 2], [3, 4], [0, 1], [5, 6])
+    for codec in (c for c in CODECS if c != LOSSY_CODEC):
+        np.testing.assert_array_equal(decode(codec, encode(ev, codec), 2), ev)
+    with pytest.raises(CodecError, match="unknown codec"):
+        encode(ev, "gzip/9")
+    with pytest.raises(CodecError, match="unknown codec"):
+        decode("gzip/9", b"", 0)
+
+
+def test_x_beyond_2047_is_refused():
+    with pytest.raises(CodecError, match="x < 2048"):
+        encode(make_events([2048], [0], [0], [0]))
+
+
+def test_corrupt_payloads_raise_codec_error():
+    rng = np.random.default_rng(0)
+    ev = make_events(rng.integers(0, 1280, 5000), rng.integers(0, 720, 5000), rng.integers(0, 2, 5000),
+                     np.sort(rng.integers(0, 10_000, 5000)))
+    data = encode(ev)
+    with pytest.raises(CodecError, match="message says"):
+        decode(DEFAULT_CODEC, data, 4999)
+    with pytest.raises(CodecError, match="outside"):
+        decode(DEFAULT_CODEC, data, 5000, max_events=100)
+    with pytest.raises(CodecError):
+        decode(DEFAULT_CODEC, data[:-10], 5000)
+    with pytest.raises(CodecError, match="header"):
+        decode(DEFAULT_CODEC, data[:10], 5000)
+    for _ in range(200):  # random byte flips: a clean error or (rarely) other valid events, never a crash
+        bad = bytearray(data)
+        for i in rng.integers(0, len(bad), 3):
+            bad[i] ^= int(rng.integers(1, 256))
+        try:
+            out = decode(DEFAULT_CODEC, bytes(bad), 5000)
+            assert out.size == 5000
+        except CodecError:
+            pass
