@@ -1,0 +1,450 @@
+"""Mission control (pure): wheel-speed PID, pose fusion, the mission state machine, path error.
+
+Two modes, chosen per mission:
+
+* ``paper`` — the paper's method: each phase is driven open loop in the arena, closed loop
+  on the encoders only. Lines and arcs set constant tread speeds (``v (1 -+ k W / 2)``) until
+  the encoders report the phase length; zero-point turns spin until the encoders report the
+  angle (with the nominal track width, so skid makes the turns short, as on the real robots).
+* ``closed`` — follows the commanded path with the robot's own pose: pure pursuit on lines
+  and arcs, heading control for zero-point turns. The pose comes from :class:`PoseEstimator`:
+  camera tracks (``arena/robots/*``) delayed by the pipeline latency are propagated to *now*
+  with odometry (latency compensation); when tracks are stale it runs on odometry alone.
+
+Both modes end in the same per-side wheel-speed PID (encoders -> motor power -400..400).
+Times are seconds (host clock unless stated), distances m, angles rad, arena frame.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .missions import Mission, Segment
+from .odometry import Odometry, WheelGeometry, wrap_angle
+
+MODES = ("paper", "closed")
+MAX_POWER = 400
+
+
+# --------------------------------------------------------------------------- SE(2) helpers
+
+
+def compose(a, b):
+    """Pose composition a ⊕ b (b expressed in a's frame)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap_angle(a[2] + b[2])
+
+
+def inverse(a):
+    """Inverse pose ⊖ a."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return -c * a[0] - s * a[1], s * a[0] - c * a[1], wrap_angle(-a[2])
+
+
+# --------------------------------------------------------------------------- wheel PID
+
+
+@dataclass
+class PIDGains:
+    """Wheel-speed PID gains: power units per (m/s), per (m/s * s), per (m/s / s)."""
+
+    kp: float = 500.0
+    ki: float = 2500.0
+    kd: float = 0.0
+    i_limit: float = 120.0      # anti-windup clamp of the integral term, power units
+
+
+class WheelPID:
+    """Per-side tread-speed PID with feed-forward ``target / max_speed * 400``.
+
+    ``update(targets m/s, measured m/s, dt s) -> (left, right)`` motor power, clipped to ±400.
+    """
+
+    def __init__(self, max_speed_mps: float, gains: PIDGains | None = None):
+        self.max_speed = max_speed_mps
+        self.g = gains or PIDGains()
+        self._i = [0.0, 0.0]
+        self._e = [0.0, 0.0]
+
+    def reset(self) -> None:
+        self._i = [0.0, 0.0]
+        self._e = [0.0, 0.0]
+
+    def update(self, target: tuple[float, float], measured: tuple[float, float], dt: float) -> tuple[int, int]:
+        out = []
+        for k in (0, 1):
+            if target[k] == 0.0:
+                self._i[k] = 0.0
+                self._e[k] = 0.0
+                out.append(0)
+                continue
+            e = target[k] - measured[k]
+            if dt > 0:
+                self._i[k] = max(-self.g.i_limit, min(self.g.i_limit, self._i[k] + self.g.ki * e * dt))
+                d = (e - self._e[k]) / dt
+            else:
+                d = 0.0
+            self._e[k] = e
+            u = target[k] / self.max_speed * MAX_POWER + self.g.kp * e + self._i[k] + self.g.kd * d
+            out.append(int(round(max(-MAX_POWER, min(MAX_POWER, u)))))
+        return out[0], out[1]
+
+
+# --------------------------------------------------------------------------- pose fusion
+
+
+class PoseEstimator:
+    """Fuse odometry (smooth, drifts) with delayed camera tracks (absolute, late, noisy).
+
+    The fused pose is ``T ⊕ odometry`` with a correction ``T``. A track measured at host time
+    ``t_pose`` is compared with the fused pose *at that time* (odometry history, so the
+    pipeline latency is compensated), blended in, and ``T`` updated: the correction then
+    carries forward to now through odometry. Tracks whose yaw disagrees by more than
+    ``max_yaw_jump`` (a 180 degree heading flip) correct position only.
+
+    Args:
+        stale_s: a track older than this no longer counts as fresh (source = ``odometry``).
+        pos_gain, yaw_gain: blend factors in (0, 1] of a track into the fused pose.
+    """
+
+    def __init__(self, stale_s: float = 0.3, pos_gain: float = 0.5, yaw_gain: float = 0.3,
+                 history_s: float = 3.0, max_yaw_jump: float = math.radians(60)):
+        self.stale_s = stale_s
+        self.pos_gain = pos_gain
+        self.yaw_gain = yaw_gain
+        self.history_s = history_s
+        self.max_yaw_jump = max_yaw_jump
+        self._T = (0.0, 0.0, 0.0)
+        self._times: deque[float] = deque()
+        self._odo: deque[tuple[float, float, float]] = deque()
+        self.last_track_t: float | None = None     # host time of the newest track pose
+        self.tracks_used = 0
+        self.tracks_rejected = 0
+
+    def add_odometry(self, t: float, pose) -> None:
+        """Record the odometry pose at host time ``t`` (increasing)."""
+        self._times.append(t)
+        self._odo.append(tuple(pose))
+        while self._times and self._times[0] < t - self.history_s:
+            self._times.popleft()
+            self._odo.popleft()
+
+    def _odo_at(self, t: float):
+        times = self._times
+        if not times:
+            return None
+        if t <= times[0]:
+            return self._odo[0] if times[0] - t < 0.05 else None
+        if t >= times[-1]:
+            return self._odo[-1]
+        i = bisect_left(times, t)
+        t0, t1 = times[i - 1], times[i]
+        a, b = self._odo[i - 1], self._odo[i]
+        f = (t - t0) / (t1 - t0) if t1 > t0 else 0.0
+        return (a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), wrap_angle(a[2] + f * wrap_angle(b[2] - a[2])))
+
+    def set_pose(self, pose) -> None:
+        """Declare the current fused pose (e.g. the known start pose)."""
+        if self._odo:
+            self._T = compose(tuple(pose), inverse(self._odo[-1]))
+        else:
+            self._T = tuple(pose)
+
+    def add_track(self, t_pose: float, x: float, y: float, yaw: float | None) -> bool:
+        """Blend a track pose measured at host time ``t_pose``; returns False if it was unusable
+        (older than the odometry history)."""
+        odo = self._odo_at(t_pose)
+        if odo is None:
+            self.tracks_rejected += 1
+            return False
+        fused = compose(self._T, odo)
+        first = self.last_track_t is None
+        gp = 1.0 if first else self.pos_gain
+        nx = fused[0] + gp * (x - fused[0])
+        ny = fused[1] + gp * (y - fused[1])
+        nth = fused[2]
+        if yaw is not None:
+            dyaw = wrap_angle(yaw - fused[2])
+            if first or abs(dyaw) <= self.max_yaw_jump:
+                nth = wrap_angle(fused[2] + (1.0 if first else self.yaw_gain) * dyaw)
+        self._T = compose((nx, ny, nth), inverse(odo))
+        self.last_track_t = t_pose if self.last_track_t is None else max(self.last_track_t, t_pose)
+        self.tracks_used += 1
+        return True
+
+    def pose(self):
+        """Current fused pose (x, y, yaw), arena frame."""
+        return compose(self._T, self._odo[-1]) if self._odo else self._T
+
+    def source(self, now: float) -> str:
+        """``track`` while tracks are fresh, else ``odometry``."""
+        if self.last_track_t is not None and now - self.last_track_t <= self.stale_s:
+            return "track"
+        return "odometry"
+
+
+# --------------------------------------------------------------------------- mission runner
+
+
+@dataclass
+class ControlOutput:
+    """What the runner wants now: motor power per side, the phase and whether it is done."""
+
+    left: int
+    right: int
+    phase: str
+    done: bool
+    target_left_mps: float = 0.0
+    target_right_mps: float = 0.0
+
+
+@dataclass
+class FollowerGains:
+    """Closed-loop path following parameters."""
+
+    lookahead_s: float = 0.25        # lookahead time: L = max(min_lookahead, v * lookahead_s), s
+    min_lookahead_m: float = 0.05
+    max_lookahead_m: float = 0.12
+    decel_mps2: float = 0.8          # braking before a zero-point turn
+    min_speed_mps: float = 0.04
+    turn_kp: float = 4.0             # yaw rate per rad of heading error, 1/s
+    turn_tol_rad: float = math.radians(1.5)
+
+
+class MissionRunner:
+    """Run a :class:`Mission` phase by phase; call :meth:`update` on every encoder sample.
+
+    Args:
+        mission: the mission (its segments are in the arena frame).
+        geometry: the robot's calibrated geometry (closed mode uses it to turn yaw rates into
+            tread speeds; paper mode uses ``paper_geometry``).
+        mode: ``paper`` or ``closed``.
+        paper_geometry: geometry the paper mode trusts for its encoder-only phases (default:
+            nominal Zumo values, track width 0.09 m, as in the paper).
+        estimator: pose source of closed mode (created if None).
+    """
+
+    def __init__(self, mission: Mission, geometry: WheelGeometry, mode: str = "paper",
+                 paper_geometry: WheelGeometry | None = None, estimator: PoseEstimator | None = None,
+                 pid: PIDGains | None = None, follower: FollowerGains | None = None):
+        if mode not in MODES:
+            raise ValueError(f"control mode must be one of {MODES}, got {mode!r}")
+        self.mission = mission
+        self.mode = mode
+        self.geometry = geometry
+        self.paper_geometry = paper_geometry or WheelGeometry(
+            geometry.sprocket_diameter_m, 0.09, geometry.counts_per_rev, geometry.max_speed_mps)
+        self.odometry = Odometry(geometry, mission.start)
+        self.estimator = estimator or PoseEstimator()
+        self.pid = WheelPID(geometry.max_speed_mps, pid)
+        self.fg = follower or FollowerGains()
+        self.index = 0
+        self.done = False
+        self._seg_t0: float | None = None
+        self._seg_enc0: tuple[int, int] | None = None
+        self._s = 0.0
+        self._last: tuple[float, int, int] | None = None
+        self.wheel_speeds = (0.0, 0.0)
+        self._started = False
+
+    @property
+    def segment(self) -> Segment | None:
+        return self.mission.segments[self.index] if self.index < len(self.mission.segments) else None
+
+    @property
+    def phase(self) -> str:
+        seg = self.segment
+        return seg.label if seg is not None else "done"
+
+    def pose(self):
+        """The pose the runner steers by: fused in closed mode, odometry in paper mode."""
+        return self.estimator.pose() if self.mode == "closed" else self.odometry.pose
+
+    def add_track(self, t_pose: float, x: float, y: float, yaw: float | None) -> bool:
+        """Feed a camera track of this robot (host time of the pose, arena frame)."""
+        return self.estimator.add_track(t_pose, x, y, yaw)
+
+    def _next(self, t: float, enc: tuple[int, int]) -> None:
+        self.index += 1
+        self._seg_t0 = t
+        self._seg_enc0 = enc
+        self._s = 0.0
+        if self.index >= len(self.mission.segments):
+            self.done = True
+
+    def update(self, t: float, enc_left: int, enc_right: int, t_robot: float | None = None) -> ControlOutput:
+        """Advance with an encoder sample at host time ``t`` s (``t_robot``: robot clock, s,
+        used for wheel speeds when given). Returns the motor command."""
+        tr = t if t_robot is None else t_robot
+        pose_odo = self.odometry.update(enc_left, enc_right)
+        self.estimator.add_odometry(t, pose_odo)
+        if not self._started:
+            self._started = True
+            if self.estimator.last_track_t is None:
+                self.estimator.set_pose(self.mission.start)
+        dt = 0.0
+        if self._last is not None:
+            dt = tr - self._last[0]
+            if dt > 0:
+                mpc = self.geometry.m_per_count
+                vl = (enc_left - self._last[1]) * mpc / dt
+                vr = (enc_right - self._last[2]) * mpc / dt
+                a = 0.5  # light low-pass against count quantisation
+                self.wheel_speeds = (a * vl + (1 - a) * self.wheel_speeds[0], a * vr + (1 - a) * self.wheel_speeds[1])
+        self._last = (tr, enc_left, enc_right)
+        enc = (enc_left, enc_right)
+        if self._seg_t0 is None:
+            self._seg_t0, self._seg_enc0 = t, enc
+        target = (0.0, 0.0)
+        for _ in range(len(self.mission.segments) + 1):  # advance over phases finished at once
+            seg = self.segment
+            if seg is None:
+                break
+            target, finished = (self._paper if self.mode == "paper" else self._closed)(seg, t, enc)
+            if not finished:
+                break
+            self._next(t, enc)
+            target = (0.0, 0.0)
+        if self.done:
+            self.pid.reset()
+            return ControlOutput(0, 0, "done", True)
+        target = self._limit(target)
+        left, right = self.pid.update(target, self.wheel_speeds, dt)
+        return ControlOutput(left, right, self.phase, False, target[0], target[1])
+
+    def _limit(self, target: tuple[float, float]) -> tuple[float, float]:
+        """Scale both tread speeds down together so the faster one stays within reach
+        (keeps the commanded curvature when a circle at 100 % asks the outer tread for more)."""
+        cap = 0.95 * self.geometry.max_speed_mps
+        m = max(abs(target[0]), abs(target[1]))
+        if m <= cap:
+            return target
+        return target[0] * cap / m, target[1] * cap / m
+
+    # ---- paper mode: encoder-only phases
+    def _paper(self, seg: Segment, t: float, enc: tuple[int, int]):
+        v = self.mission.speed_mps
+        mpc = self.paper_geometry.m_per_count
+        dl = (enc[0] - self._seg_enc0[0]) * mpc
+        dr = (enc[1] - self._seg_enc0[1]) * mpc
+        if seg.kind == "pause":
+            return (0.0, 0.0), t - self._seg_t0 >= seg.duration_s
+        if seg.kind == "turn":
+            angle = (dr - dl) / self.paper_geometry.track_width_m
+            if abs(angle) >= abs(seg.turn_rad):
+                return (0.0, 0.0), True
+            sgn = 1.0 if seg.turn_rad > 0 else -1.0
+            return (-sgn * v, sgn * v), False
+        if 0.5 * (dl + dr) >= seg.length_m:
+            return (0.0, 0.0), True
+        half = 0.5 * seg.curvature * self.paper_geometry.track_width_m
+        return (v * (1.0 - half), v * (1.0 + half)), False
+
+    # ---- closed mode: path following on the fused pose
+    def _closed(self, seg: Segment, t: float, enc: tuple[int, int]):
+        x, y, th = self.estimator.pose()
+        v_cruise = self.mission.speed_mps
+        w_eff = self.geometry.track_width_m
+        if seg.kind == "pause":
+            return (0.0, 0.0), t - self._seg_t0 >= seg.duration_s
+        if seg.kind == "turn":
+            err = wrap_angle(seg.end[2] - th)
+            w_max = 2.0 * v_cruise / w_eff
+            if abs(err) < self.fg.turn_tol_rad:
+                return (0.0, 0.0), True
+            w = max(-w_max, min(w_max, self.fg.turn_kp * err))
+            w_min = 2.0 * self.fg.min_speed_mps / w_eff
+            if abs(w) < w_min:
+                w = math.copysign(w_min, err)
+            return (-0.5 * w * w_eff, 0.5 * w * w_eff), False
+        # progress along the segment: project onto the path near the last progress
+        s = self._project(seg, x, y)
+        self._s = max(self._s, s)
+        remaining = seg.length_m - self._s
+        if remaining <= 0.003:
+            return (0.0, 0.0), True
+        v = v_cruise
+        nxt = self.mission.segments[self.index + 1] if self.index + 1 < len(self.mission.segments) else None
+        if nxt is None or nxt.kind != "arc" or seg.kind != "arc":
+            v = min(v, max(self.fg.min_speed_mps, math.sqrt(2.0 * self.fg.decel_mps2 * remaining)))
+        look = max(self.fg.min_lookahead_m, min(self.fg.max_lookahead_m, v * self.fg.lookahead_s))
+        s_look = self._s + look
+        if s_look <= seg.length_m:
+            px, py, _ = seg.pose_at(s_look)
+        else:  # beyond the end: extend straight along the end heading
+            ex, ey, eth = seg.end
+            extra = s_look - seg.length_m
+            px, py = ex + extra * math.cos(eth), ey + extra * math.sin(eth)
+        dx, dy = px - x, py - y
+        c, s_ = math.cos(th), math.sin(th)
+        lx, ly = c * dx + s_ * dy, -s_ * dx + c * dy
+        d2 = lx * lx + ly * ly
+        if lx <= 0.0:  # the lookahead point is behind: turn towards it on the spot
+            w = math.copysign(2.0 * v / w_eff, ly if ly != 0 else 1.0)
+            return (-0.5 * w * w_eff, 0.5 * w * w_eff), False
+        kappa = 2.0 * ly / d2 if d2 > 1e-9 else 0.0
+        kappa = max(-2.0 / w_eff, min(2.0 / w_eff, kappa))
+        half = 0.5 * kappa * w_eff
+        return (v * (1.0 - half), v * (1.0 + half)), False
+
+    def _project(self, seg: Segment, x: float, y: float) -> float:
+        """Arc length of the closest point of ``seg`` to (x, y), searched from the last progress."""
+        lo = self._s
+        hi = min(seg.length_m, lo + 0.15)
+        ss = np.linspace(lo, hi, 31)
+        pts = np.array([seg.pose_at(s)[:2] for s in ss])
+        d = np.hypot(pts[:, 0] - x, pts[:, 1] - y)
+        return float(ss[int(np.argmin(d))])
+
+
+# --------------------------------------------------------------------------- scoring
+
+
+@dataclass(frozen=True)
+class PathError:
+    """How far a traced shape is from the commanded one, m.
+
+    Attributes:
+        mean_m: mean distance of traced points to the commanded path (the headline number).
+        max_m: largest such distance.
+        rms_m: root mean square of it.
+        coverage_m: mean distance of commanded points to the trace (large when the robot
+            cut a shape short or never reached part of it).
+        n: number of traced points scored.
+    """
+
+    mean_m: float
+    max_m: float
+    rms_m: float
+    coverage_m: float
+    n: int
+
+    def as_dict(self) -> dict:
+        return {"mean_m": self.mean_m, "max_m": self.max_m, "rms_m": self.rms_m,
+                "coverage_m": self.coverage_m, "n": self.n}
+
+
+def path_error(traced: np.ndarray, commanded: np.ndarray, step_m: float = 0.001) -> PathError:
+    """Compare a traced trajectory (n, 2) with a commanded path polyline (m, 2), both m.
+
+    The commanded polyline is resampled every ``step_m`` so distances are exact to ``step_m/2``.
+    """
+    traced = np.asarray(traced, dtype=float).reshape(-1, 2)
+    commanded = np.asarray(commanded, dtype=float).reshape(-1, 2)
+    if len(traced) == 0 or len(commanded) == 0:
+        raise ValueError("path_error needs at least one traced and one commanded point")
+    dense = [commanded[:1]]
+    for a, b in zip(commanded[:-1], commanded[1:]):
+        n = max(1, int(math.ceil(float(np.hypot(*(b - a))) / step_m)))
+        f = np.arange(1, n + 1)[:, None] / n
+        dense.append(a + f * (b - a))
+    dense = np.concatenate(dense)
+    d, _ = cKDTree(dense).query(traced)
+    cov, _ = cKDTree(traced).query(commanded)
+    return PathError(float(d.mean()), float(d.max()), float(np.sqrt((d ** 2).mean())), float(cov.mean()), len(traced))

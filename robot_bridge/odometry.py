@@ -1,0 +1,123 @@
+"""Wheel (tread) odometry from encoder counts, and its calibration (pure).
+
+Frames: poses are (x m, y m, yaw rad) in the arena frame, yaw counter-clockwise from +x.
+Encoder counts are cumulative per side; forward is positive.
+
+Tracked robots skid when they turn, so the *effective* track width that maps the tread
+speed difference to the yaw rate is larger than the distance between the treads (by
+15-30 % on Zumo-class robots). :func:`calibrate_track_width` measures it from a spin.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap an angle to [-pi, pi), rad."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class WheelGeometry:
+    """Drive geometry of one robot.
+
+    Attributes:
+        sprocket_diameter_m: drive sprocket diameter, m (Zumo: ~0.038).
+        track_width_m: effective track width used for turning, m (nominal 0.09 between tread
+            centres; calibrated values are larger because tracks skid).
+        counts_per_rev: encoder counts per sprocket revolution (150:1 motors: 1807).
+        max_speed_mps: tread speed at power 400, m/s (feed-forward of the wheel PID).
+    """
+
+    sprocket_diameter_m: float = 0.038
+    track_width_m: float = 0.09
+    counts_per_rev: int = 1807
+    max_speed_mps: float = 0.46
+
+    def __post_init__(self):
+        for name in ("sprocket_diameter_m", "track_width_m", "max_speed_mps"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.counts_per_rev <= 0:
+            raise ValueError(f"counts_per_rev must be > 0, got {self.counts_per_rev}")
+
+    @property
+    def m_per_count(self) -> float:
+        """Tread travel per encoder count, m."""
+        return math.pi * self.sprocket_diameter_m / self.counts_per_rev
+
+
+class Odometry:
+    """Dead reckoning: integrate encoder count increments into an arena-frame pose.
+
+    Example::
+
+        odo = Odometry(WheelGeometry(), pose=(0.5, 0.5, 0.0))
+        odo.update(100, 100)          # first call only latches the counts
+        x, y, yaw = odo.update(300, 300)
+    """
+
+    def __init__(self, geometry: WheelGeometry, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+        self.geometry = geometry
+        self.x, self.y, self.yaw = (float(v) for v in pose)
+        self.distance_m = 0.0   # total path length driven (mean of both treads), m
+        self._last: tuple[int, int] | None = None
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """Current pose (x m, y m, yaw rad), arena frame."""
+        return self.x, self.y, self.yaw
+
+    def reset(self, pose: tuple[float, float, float]) -> None:
+        """Set the pose (keeps the latched counts, so the next increment is still correct)."""
+        self.x, self.y, self.yaw = (float(v) for v in pose)
+
+    def update(self, enc_left: int, enc_right: int) -> tuple[float, float, float]:
+        """Integrate from the previous counts to these (midpoint rule); return the pose."""
+        if self._last is None:
+            self._last = (enc_left, enc_right)
+            return self.pose
+        mpc = self.geometry.m_per_count
+        dl = (enc_left - self._last[0]) * mpc
+        dr = (enc_right - self._last[1]) * mpc
+        self._last = (enc_left, enc_right)
+        ds = 0.5 * (dl + dr)
+        dth = (dr - dl) / self.geometry.track_width_m
+        mid = self.yaw + 0.5 * dth
+        self.x += ds * math.cos(mid)
+        self.y += ds * math.sin(mid)
+        self.yaw = wrap_angle(self.yaw + dth)
+        self.distance_m += abs(ds)
+        return self.pose
+
+
+def calibrate_track_width(delta_left_counts: int, delta_right_counts: int, yaw_change_rad: float,
+                          geometry: WheelGeometry) -> float:
+    """Effective track width, m, from a zero-point turn.
+
+    Args:
+        delta_left_counts, delta_right_counts: encoder increments during the turn.
+        yaw_change_rad: the true (unwrapped) yaw change during the turn, rad, measured by
+            the camera tracks or by integrating the gyro.
+        geometry: sprocket diameter and counts per revolution.
+    """
+    if abs(yaw_change_rad) < math.radians(30):
+        raise ValueError("turn at least 30 degrees to calibrate the track width")
+    mpc = geometry.m_per_count
+    width = (delta_right_counts - delta_left_counts) * mpc / yaw_change_rad
+    if width <= 0:
+        raise ValueError("encoder increments and yaw change disagree in sign: are the motors swapped?")
+    return width
+
+
+def calibrate_sprocket_diameter(delta_left_counts: int, delta_right_counts: int, distance_m: float,
+                                geometry: WheelGeometry) -> float:
+    """Effective sprocket diameter, m, from a straight drive of known length ``distance_m``."""
+    if distance_m < 0.2:
+        raise ValueError("drive at least 0.2 m straight to calibrate the sprocket diameter")
+    revs = 0.5 * (delta_left_counts + delta_right_counts) / geometry.counts_per_rev
+    if revs <= 0:
+        raise ValueError("encoders did not count forward during the straight drive")
+    return distance_m / (math.pi * revs)
