@@ -658,17 +658,21 @@ def hota(al: Alignment) -> Hota:
         trk_count[0, fr.trk] += 1
     with np.errstate(invalid="ignore", divide="ignore"):
         gas = np.nan_to_num(potential / (gt_count + trk_count - potential))
-    tp = np.zeros(nA)
-    mcounts = np.zeros((nA, nR, nT))
+    pg, pt, ps = [], [], []  # every frame's optimal pairs: robot, track, similarity
     for fr, s in zip(al.frames, sims):
         if not len(fr.gt) or not len(fr.trk):
             continue
         r, c = linear_sum_assignment(-(gas[fr.gt[:, None], fr.trk[None, :]] * s))
-        ms = s[r, c]
-        for a, alpha in enumerate(HOTA_ALPHAS):
-            ok = ms >= alpha - eps
-            tp[a] += np.count_nonzero(ok)
-            np.add.at(mcounts[a], (fr.gt[r[ok]], fr.trk[c[ok]]), 1)
+        pg.append(fr.gt[r])
+        pt.append(fr.trk[c])
+        ps.append(s[r, c])
+    pg, pt, ps = (np.concatenate(a) if a else np.zeros(0) for a in (pg, pt, ps))
+    tp = np.zeros(nA)
+    mcounts = np.zeros((nA, nR, nT))
+    for a, alpha in enumerate(HOTA_ALPHAS):
+        ok = ps >= alpha - eps
+        tp[a] = np.count_nonzero(ok)
+        np.add.at(mcounts[a], (pg[ok].astype(np.int64), pt[ok].astype(np.int64)), 1)
     fn = n_gt - tp
     fp = n_trk - tp
     assa = np.zeros(nA)
