@@ -1,0 +1,440 @@
+"""RGB ground truth: webcam frames, colour-blob and ArUco-marker robot detectors.
+
+Frames and units: image ``u`` (column, right), ``v`` (row, down) in px; arena ``x``/``y`` in
+metres, yaw in radians counter-clockwise from the arena +x axis, in ``[-pi, pi)``; times in
+microseconds (``t_us``). Pixel -> arena goes through a :class:`~groundtruth.homography.Homography`
+calibrated at shell-top / marker height (see that module for the parallax error otherwise).
+
+Detectors are pure (frame in, :class:`Detection` list out) and keep only the small state a
+tracker of headings needs (recent positions per robot). :class:`FrameSource` is the one
+piece of I/O: it opens ``cv2.VideoCapture`` on a device index, a file or a URL and stamps
+each frame when it is captured.
+
+* :class:`HsvDetector` — the paper's method made robust: HSV thresholds per robot,
+  morphology, external contours, area and shape (solidity, aspect) checks, the centroid by
+  moments of the blob's convex hull (so a front mark does not bias it). Heading: the shell
+  outline's orientation (``minAreaRect`` in arena metres, modulo 90° for a square shell)
+  resolved by the dark front mark (a hole in the blob near its front edge) when present,
+  else by the direction of motion (assuming forward driving); ``nan`` when neither is known.
+* :class:`MarkerDetector` — ArUco markers (``cv2.aruco.ArucoDetector``, sub-pixel corners):
+  a unique id per robot, position = centre of the four corners and heading = the marker's
+  "up" edge direction, both in arena metres, without ambiguity. The marker's top edge
+  faces the robot's front.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from groundtruth.homography import Homography
+
+#: Column order of the ground-truth CSV.
+CSV_FIELDS = ("t_us", "robot", "x_m", "y_m", "yaw_rad", "u_px", "v_px", "detector")
+
+
+@dataclass
+class Detection:
+    """One robot seen in one frame.
+
+    Attributes:
+        t_us: capture time of the frame, µs (host clock for live sources, media time for files).
+        robot: robot name.
+        x_m, y_m: position in the arena frame, m.
+        yaw_rad: heading, rad, counter-clockwise from arena +x; ``nan`` if unknown.
+        u_px, v_px: image position of the detected centre, px.
+        detector: ``"hsv"`` or ``"aruco"``.
+    """
+
+    t_us: int
+    robot: str
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    u_px: float
+    v_px: float
+    detector: str
+
+    def csv_row(self) -> list:
+        """Values in :data:`CSV_FIELDS` order, floats rounded (0.1 mm, 1e-5 rad, 0.01 px)."""
+        return [self.t_us, self.robot, f"{self.x_m:.5f}", f"{self.y_m:.5f}",
+                "nan" if math.isnan(self.yaw_rad) else f"{self.yaw_rad:.5f}",
+                f"{self.u_px:.2f}", f"{self.v_px:.2f}", self.detector]
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class DetectionWriter:
+    """Write detections to a CSV file with the :data:`CSV_FIELDS` header."""
+
+    def __init__(self, path: str | Path):
+        self._f = open(path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(CSV_FIELDS)
+
+    def write(self, dets: list[Detection]) -> None:
+        for d in dets:
+            self._w.writerow(d.csv_row())
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "DetectionWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+# ---------------------------------------------------------------------------- frames
+class FrameSource:
+    """Frames from ``cv2.VideoCapture``, each stamped when it is captured.
+
+    Args:
+        source: a device index (``0`` or ``"0"``), a video file path, or a URL
+            (``http://127.0.0.1:8090/stream.mjpg``, ``rtsp://...``).
+
+    Live sources (devices, URLs) are stamped with the host clock (``time.time_ns() // 1000``,
+    µs) right after the frame is grabbed; files with their media time (µs from the start).
+    Raises ``OSError`` with a clear message if the source cannot be opened.
+    """
+
+    def __init__(self, source: str | int):
+        self.source = source
+        index = _as_index(source)
+        if index is not None:
+            self._cap = cv2.VideoCapture(index)
+            self.live = True
+        else:
+            s = str(source)
+            self.live = "://" in s
+            if not self.live and not Path(s).exists():
+                raise OSError(f"video file not found: {s}")
+            self._cap = cv2.VideoCapture(s, cv2.CAP_FFMPEG) if self.live else cv2.VideoCapture(s)
+        if not self._cap.isOpened():
+            raise OSError(f"cannot open video source {source!r}")
+        #: Frames read so far.
+        self.frames = 0
+
+    @property
+    def fps(self) -> float:
+        """The source's nominal frame rate (0 if unknown), frames/s."""
+        return float(self._cap.get(cv2.CAP_PROP_FPS) or 0.0)
+
+    def read(self) -> tuple[int, np.ndarray] | None:
+        """Next ``(t_us, BGR frame)``, or ``None`` at the end of the stream."""
+        if not self._cap.grab():
+            return None
+        if self.live:
+            t_us = time.time_ns() // 1000
+        else:
+            t_us = int(round(self._cap.get(cv2.CAP_PROP_POS_MSEC) * 1000.0))
+        ok, frame = self._cap.retrieve()
+        if not ok or frame is None:
+            return None
+        self.frames += 1
+        return t_us, frame
+
+    def close(self) -> None:
+        self._cap.release()
+
+    def __enter__(self) -> "FrameSource":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __iter__(self):
+        while (got := self.read()) is not None:
+            yield got
+
+
+def _as_index(source) -> int | None:
+    if isinstance(source, int):
+        return source
+    s = str(source).strip()
+    return int(s) if s.isdigit() else None
+
+
+# ---------------------------------------------------------------------------- HSV
+@dataclass(frozen=True)
+class HsvRange:
+    """An OpenCV HSV box: ``lo``/``hi`` as (H 0-179, S 0-255, V 0-255). If ``lo[0] > hi[0]``
+    the hue range wraps around 180 (reds)."""
+
+    lo: tuple[int, int, int]
+    hi: tuple[int, int, int]
+
+    def __post_init__(self):
+        for t, name in ((self.lo, "lo"), (self.hi, "hi")):
+            if len(t) != 3 or not (0 <= t[0] <= 179 and 0 <= t[1] <= 255 and 0 <= t[2] <= 255):
+                raise ValueError(f"HSV {name} must be (H 0-179, S 0-255, V 0-255), got {t}")
+        if self.lo[1] > self.hi[1] or self.lo[2] > self.hi[2]:
+            raise ValueError(f"HSV range lo {self.lo} exceeds hi {self.hi} in S or V")
+
+    def mask(self, hsv: np.ndarray) -> np.ndarray:
+        """Binary mask (uint8 0/255) of the pixels of an HSV image inside the range."""
+        lo, hi = self.lo, self.hi
+        if lo[0] <= hi[0]:
+            return cv2.inRange(hsv, lo, hi)
+        a = cv2.inRange(hsv, lo, (179, hi[1], hi[2]))
+        b = cv2.inRange(hsv, (0, lo[1], lo[2]), hi)
+        return cv2.bitwise_or(a, b)
+
+    @classmethod
+    def parse(cls, value) -> "HsvRange":
+        """From ``[[h, s, v], [h, s, v]]`` or ``{"lo": [...], "hi": [...]}`` (config files)."""
+        if isinstance(value, HsvRange):
+            return value
+        if isinstance(value, dict):
+            value = [value.get("lo"), value.get("hi")]
+        try:
+            lo, hi = value
+            return cls(tuple(int(v) for v in lo), tuple(int(v) for v in hi))
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"bad HSV range {value!r}: expected [[h,s,v],[h,s,v]] ({e})") from None
+
+
+def sample_hsv_range(frame: np.ndarray, pixel: tuple[float, float], radius: int = 3,
+                     margin: tuple[int, int, int] = (8, 50, 60)) -> HsvRange:
+    """Sample a robot's HSV range from a BGR frame around ``pixel`` (u, v), px.
+
+    Takes the 5th-95th percentile of H, S and V in a ``(2 radius + 1)`` square (click on the
+    middle of the shell top, away from the front mark) and widens it by ``margin`` (H, S, V).
+    The hue is handled circularly (a red shell gives a wrapping range).
+    """
+    h, w = frame.shape[:2]
+    u, v = int(round(pixel[0])), int(round(pixel[1]))
+    if not (0 <= u < w and 0 <= v < h):
+        raise ValueError(f"pixel {pixel} outside the {w}x{h} frame")
+    patch = frame[max(0, v - radius):v + radius + 1, max(0, u - radius):u + radius + 1]
+    hsv = cv2.cvtColor(patch, cv2.COLOR_BGR2HSV).reshape(-1, 3).astype(float)
+    s_lo, s_hi = np.percentile(hsv[:, 1], [5, 95])
+    v_lo, v_hi = np.percentile(hsv[:, 2], [5, 95])
+    if s_hi < 40 or np.median(hsv[:, 2]) < 70:   # black / grey shell: hue is meaningless
+        return HsvRange((0, 0, int(max(0, v_lo - margin[2]))),
+                        (179, int(min(255, s_hi + margin[1])), int(min(255, v_hi + margin[2]))))
+    ang = hsv[:, 0] * (2 * math.pi / 180)
+    mean = math.atan2(np.sin(ang).mean(), np.cos(ang).mean()) * 180 / (2 * math.pi)
+    dev = (hsv[:, 0] - mean + 90) % 180 - 90
+    d_lo, d_hi = np.percentile(dev, [5, 95])
+    h_lo = int(math.floor(mean + d_lo - margin[0])) % 180
+    h_hi = int(math.ceil(mean + d_hi + margin[0])) % 180
+    return HsvRange((h_lo, int(max(0, s_lo - margin[1])), int(max(0, v_lo - margin[2]))),
+                    (h_hi, 255, int(min(255, v_hi + margin[2]))))
+
+
+def hsv_range_from_rgb(rgb: tuple[int, int, int], hue_margin: int = 10) -> HsvRange:
+    """A default HSV range for a nominal shell colour (R, G, B 0-255) from the lab config,
+    tolerant to lighting (V down to 30 % of the nominal). Prefer :func:`sample_hsv_range`
+    on a real frame. Raises ``ValueError`` for white/grey shells (indistinct from the mats)."""
+    bgr = np.uint8([[list(rgb)[::-1]]])
+    h, s, v = (int(c) for c in cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)[0, 0])
+    if s < 60:
+        if v > 110:
+            raise ValueError(f"shell colour {rgb} is too close to the white mats for colour detection")
+        return HsvRange((0, 0, 0), (179, 255, max(60, int(v * 2.5))))
+    return HsvRange(((h - hue_margin) % 180, max(40, s // 2), max(25, int(v * 0.3))),
+                    ((h + hue_margin) % 180, 255, 255))
+
+
+class HsvDetector:
+    """Colour-blob robot detector (one HSV range per robot; the largest valid blob wins).
+
+    Args:
+        ranges: robot name -> :class:`HsvRange` (or anything :meth:`HsvRange.parse` takes).
+        homography: pixel -> arena at shell-top height.
+        shell_size_m: (length, width) of the shell top, m; sets the area and shape checks.
+        area_tolerance: accepted blob area (hull, in arena m^2) is within this factor of
+            the nominal shell area (``nominal / tol .. nominal * tol``).
+        min_solidity: blob area / convex hull area (a front mark removes ~15 %).
+        front_mark: look for the dark front mark (a hole near the front edge).
+        motion_min_m: displacement over ``motion_window_us`` above which the direction of
+            motion resolves the heading when no front mark is seen, m.
+    """
+
+    name = "hsv"
+
+    def __init__(self, ranges: dict, homography: Homography, shell_size_m=(0.10, 0.10),
+                 area_tolerance: float = 2.2, min_solidity: float = 0.55, front_mark: bool = True,
+                 motion_min_m: float = 0.02, motion_window_us: int = 300_000):
+        self.ranges = {name: HsvRange.parse(r) for name, r in ranges.items()}
+        self.homography = homography
+        self.shell_area_m2 = float(shell_size_m[0]) * float(shell_size_m[1])
+        self.area_tolerance = float(area_tolerance)
+        self.min_solidity = float(min_solidity)
+        self.front_mark = bool(front_mark)
+        self.motion_min_m = float(motion_min_m)
+        self.motion_window_us = int(motion_window_us)
+        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+        self.history_: dict[str, deque] = {}
+
+    def detect(self, frame: np.ndarray, t_us: int) -> list[Detection]:
+        """Detect every configured robot in a BGR frame captured at ``t_us`` (µs)."""
+        _check_frame(frame)
+        hsv = cv2.cvtColor(frame, cv2.COLOR_BGR2HSV)
+        out = []
+        for robot, rng in self.ranges.items():
+            mask = cv2.morphologyEx(rng.mask(hsv), cv2.MORPH_OPEN, self._kernel)
+            det = self._best_blob(mask, robot, t_us)
+            if det is not None:
+                out.append(det)
+        return out
+
+    def _best_blob(self, mask: np.ndarray, robot: str, t_us: int) -> Detection | None:
+        contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        best = None
+        lo = self.shell_area_m2 / self.area_tolerance
+        hi = self.shell_area_m2 * self.area_tolerance
+        for c in contours:
+            if len(c) < 5:
+                continue
+            hull = cv2.convexHull(c)
+            hull_area_px = cv2.contourArea(hull)
+            if hull_area_px < 4:
+                continue
+            hull_m = self.homography.to_arena(hull.reshape(-1, 2).astype(float)).astype(np.float32)
+            area_m2 = cv2.contourArea(hull_m)
+            if not lo <= area_m2 <= hi:
+                continue
+            solidity = cv2.contourArea(c) / hull_area_px
+            if solidity < self.min_solidity:
+                continue
+            (_, _), (rw, rh), _ = cv2.minAreaRect(hull_m)
+            if min(rw, rh) <= 0 or max(rw, rh) / min(rw, rh) > 2.0:
+                continue
+            if best is None or area_m2 > best[0]:
+                best = (area_m2, c, hull, hull_m)
+        if best is None:
+            return None
+        _, contour, hull, hull_m = best
+        m = cv2.moments(hull)
+        u, v = m["m10"] / m["m00"], m["m01"] / m["m00"]
+        x, y = (float(a) for a in self.homography.to_arena(np.array([u, v])))
+        yaw = self._heading(mask, hull, hull_m, (x, y), robot, t_us)
+        return Detection(int(t_us), robot, x, y, yaw, float(u), float(v), self.name)
+
+    def _heading(self, mask, hull, hull_m, xy, robot, t_us) -> float:
+        # outline orientation in arena metres, modulo 90 degrees (square) / 180 (oblong)
+        (_, _), (rw, rh), ang = cv2.minAreaRect(hull_m * np.float32(1000.0))
+        axis = math.radians(ang) if rw >= rh else math.radians(ang + 90.0)
+        square = abs(rw - rh) < 0.2 * max(rw, rh)
+        cands = [axis + k * math.pi / 2 for k in range(4)] if square else [axis, axis + math.pi]
+        hint = self._mark_direction(mask, hull, xy) if self.front_mark else None
+        hist = self.history_.setdefault(robot, deque())
+        hist.append((t_us, xy[0], xy[1]))
+        while hist and hist[0][0] < t_us - self.motion_window_us:
+            hist.popleft()
+        if hint is None and len(hist) >= 2:
+            dx, dy = hist[-1][1] - hist[0][1], hist[-1][2] - hist[0][2]
+            if math.hypot(dx, dy) >= self.motion_min_m:
+                hint = math.atan2(dy, dx)
+        if hint is None:
+            return float("nan")
+        best = min(cands, key=lambda a: abs(_wrap(a - hint)))
+        return _wrap(best)
+
+    def _mark_direction(self, mask, hull, xy) -> float | None:
+        """Direction (rad, arena) from the blob centre to the front mark, if one is seen."""
+        x0, y0, w, h = cv2.boundingRect(hull)
+        filled = np.zeros((h, w), np.uint8)
+        cv2.fillConvexPoly(filled, hull.reshape(-1, 2) - (x0, y0), 255)
+        hole = cv2.bitwise_and(filled, cv2.bitwise_not(mask[y0:y0 + h, x0:x0 + w]))
+        hole = cv2.erode(hole, self._kernel)   # drop slivers along the outline
+        n, _, stats, cents = cv2.connectedComponentsWithStats(hole)
+        if n < 2:
+            return None
+        k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+        if stats[k, cv2.CC_STAT_AREA] < max(3, 0.03 * w * h):
+            return None
+        mu, mv = cents[k] + (x0, y0)
+        mx, my = self.homography.to_arena(np.array([mu, mv]))
+        dx, dy = mx - xy[0], my - xy[1]
+        if math.hypot(dx, dy) < 0.01:     # a hole in the middle is not a front mark
+            return None
+        return math.atan2(dy, dx)
+
+
+# ---------------------------------------------------------------------------- markers
+class MarkerDetector:
+    """ArUco marker detector: unique ids, position and heading without ambiguity.
+
+    Args:
+        ids: marker id -> robot name; ``None`` reports every id as ``"marker<id>"``.
+        homography: pixel -> arena at marker height (the shell top).
+        dictionary: an OpenCV predefined dictionary id (default ``DICT_4X4_50``).
+    """
+
+    name = "aruco"
+
+    def __init__(self, ids: dict[int, str] | None, homography: Homography,
+                 dictionary: int = cv2.aruco.DICT_4X4_50):
+        self.ids = None if ids is None else {int(k): str(v) for k, v in ids.items()}
+        self.homography = homography
+        params = cv2.aruco.DetectorParameters()
+        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+        params.cornerRefinementWinSize = 2
+        params.cornerRefinementMinAccuracy = 0.01
+        params.minMarkerPerimeterRate = 0.02
+        self._det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(dictionary), params)
+
+    def detect(self, frame: np.ndarray, t_us: int) -> list[Detection]:
+        """Detect configured markers in a BGR frame captured at ``t_us`` (µs)."""
+        _check_frame(frame)
+        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        corners, ids, _ = self._det.detectMarkers(gray)
+        out: dict[str, Detection] = {}
+        if ids is None:
+            return []
+        for c, i in zip(corners, ids.ravel()):
+            i = int(i)
+            if self.ids is None:
+                robot = f"marker{i}"
+            elif i in self.ids:
+                robot = self.ids[i]
+            else:
+                continue
+            px = c.reshape(4, 2).astype(float)
+            xy = self.homography.to_arena(px)
+            x, y = xy.mean(0)
+            front = 0.5 * (xy[0] + xy[1]) - 0.5 * (xy[2] + xy[3])
+            yaw = math.atan2(front[1], front[0])
+            u, v = self.homography.to_pixel(np.array([x, y]))
+            det = Detection(int(t_us), robot, float(x), float(y), _wrap(yaw), float(u), float(v), self.name)
+            if robot not in out:        # a duplicate id keeps its first (most confident) hit
+                out[robot] = det
+        return list(out.values())
+
+
+def _check_frame(frame) -> None:
+    if not isinstance(frame, np.ndarray) or frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+        raise ValueError("frame must be a BGR uint8 image of shape (h, w, 3)")
+
+
+def annotate(frame: np.ndarray, dets: list[Detection], homography: Homography | None = None) -> np.ndarray:
+    """A copy of ``frame`` with each detection's centre, name and (given the homography)
+    a 6 cm heading arrow drawn."""
+    img = frame.copy()
+    for d in dets:
+        p = (int(round(d.u_px)), int(round(d.v_px)))
+        cv2.circle(img, p, 3, (0, 0, 255), -1, cv2.LINE_AA)
+        if homography is not None and not math.isnan(d.yaw_rad):
+            tip = homography.to_pixel(np.array([d.x_m + 0.06 * math.cos(d.yaw_rad),
+                                                d.y_m + 0.06 * math.sin(d.yaw_rad)]))
+            cv2.arrowedLine(img, p, (int(round(tip[0])), int(round(tip[1]))), (0, 0, 255), 1,
+                            cv2.LINE_AA, tipLength=0.3)
+        cv2.putText(img, d.robot, (p[0] + 6, p[1] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.4,
+                    (0, 0, 255), 1, cv2.LINE_AA)
+    return img
