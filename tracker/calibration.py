@@ -1,0 +1,161 @@
+"""Calibration of the event camera: sensor pixels <-> arena metres by a homography.
+
+Frames: sensor ``(u, v)`` px (u column right, v row down); arena ``(x, y)`` m (origin at
+one mat corner, yaw counter-clockwise from +x). The calibration file is JSON::
+
+    {"image_size": [w, h], "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}
+
+with at least 4 points (no 3 of the first 4 collinear). The same dict is accepted inside a
+lab config's camera table (``arena.config.CameraConfig.calibration``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["Calibration", "CalibrationError", "load_calibration"]
+
+
+class CalibrationError(ValueError):
+    """A calibration that cannot be used; the message says what is wrong."""
+
+
+@dataclass
+class Calibration:
+    """A pixel <-> arena homography.
+
+    Attributes:
+        H: 3x3 homography, sensor px -> arena m.
+        image_size: sensor (width, height), px.
+        pixels, arena_m: the (n, 2) point pairs it was fitted to.
+    """
+
+    H: np.ndarray
+    image_size: tuple[int, int]
+    pixels: np.ndarray
+    arena_m: np.ndarray
+
+    @classmethod
+    def from_points(cls, pixels, arena_m, image_size: tuple[int, int]) -> "Calibration":
+        """Fit the homography to >= 4 pairs of (u, v) px and (x, y) m (least squares)."""
+        px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        am = np.asarray(arena_m, dtype=np.float64).reshape(-1, 2)
+        if px.shape != am.shape:
+            raise CalibrationError(f"{len(px)} pixel points but {len(am)} arena points")
+        if len(px) < 4:
+            raise CalibrationError(f"a homography needs at least 4 point pairs, got {len(px)}")
+        if not (np.isfinite(px).all() and np.isfinite(am).all()):
+            raise CalibrationError("calibration points must be finite numbers")
+        w, h = (int(image_size[0]), int(image_size[1]))
+        if w <= 0 or h <= 0:
+            raise CalibrationError(f"image_size must be positive [w, h] px, got {list(image_size)}")
+        H, _ = cv2.findHomography(px, am, 0)
+        if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-18:
+            raise CalibrationError("the calibration points are degenerate (collinear or repeated): "
+                                   "give 4 or more points spread over the arena, e.g. the mat corners")
+        return cls(H=H / H[2, 2], image_size=(w, h), pixels=px, arena_m=am)
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "calibration") -> "Calibration":
+        """Build from the calibration JSON dict (see the module docstring)."""
+        if not isinstance(d, dict):
+            raise CalibrationError(f"{source}: expected a JSON object with image_size and points")
+        try:
+            size = d["image_size"]
+            pts = d["points"]
+            px = [p["pixel"] for p in pts]
+            am = [p["arena_m"] for p in pts]
+            size = (int(size[0]), int(size[1]))
+        except (KeyError, TypeError, IndexError, ValueError) as exc:
+            raise CalibrationError(
+                f"{source}: expected {{\"image_size\": [w, h], \"points\": [{{\"pixel\": [u, v], "
+                f"\"arena_m\": [x, y]}}, ...]}} ({type(exc).__name__}: {exc})") from None
+        try:
+            return cls.from_points(px, am, size)
+        except (ValueError, TypeError) as exc:
+            raise CalibrationError(f"{source}: {exc}") from None
+
+    def to_dict(self) -> dict:
+        return {"image_size": [int(self.image_size[0]), int(self.image_size[1])],
+                "points": [{"pixel": [float(u), float(v)], "arena_m": [float(x), float(y)]}
+                           for (u, v), (x, y) in zip(self.pixels, self.arena_m)]}
+
+    def save(self, path: str | Path) -> None:
+        """Write the calibration JSON file."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    # -- mapping ----------------------------------------------------------
+    def to_arena(self, uv) -> np.ndarray:
+        """Sensor (u, v) px -> arena (x, y) m; accepts (2,) or (n, 2)."""
+        return _apply(self.H, uv)
+
+    def to_pixel(self, xy) -> np.ndarray:
+        """Arena (x, y) m -> sensor (u, v) px; accepts (2,) or (n, 2)."""
+        return _apply(np.linalg.inv(self.H), xy)
+
+    def jacobian(self, u: float, v: float) -> np.ndarray:
+        """d(x, y)/d(u, v) at pixel (u, v): 2x2, m per px."""
+        H = self.H
+        w = H[2, 0] * u + H[2, 1] * v + H[2, 2]
+        x = (H[0, 0] * u + H[0, 1] * v + H[0, 2]) / w
+        y = (H[1, 0] * u + H[1, 1] * v + H[1, 2]) / w
+        return np.array([[(H[0, 0] - x * H[2, 0]) / w, (H[0, 1] - x * H[2, 1]) / w],
+                         [(H[1, 0] - y * H[2, 0]) / w, (H[1, 1] - y * H[2, 1]) / w]])
+
+    def px_per_m(self, u: float | None = None, v: float | None = None) -> float:
+        """Image scale at pixel (u, v) (default: the image centre), px per metre."""
+        if u is None or v is None:
+            u, v = self.image_size[0] / 2.0, self.image_size[1] / 2.0
+        return 1.0 / math.sqrt(abs(np.linalg.det(self.jacobian(u, v))))
+
+    def vector_to_arena(self, u: float, v: float, du: float, dv: float) -> tuple[float, float]:
+        """A sensor-frame vector (px or px/s) at pixel (u, v) -> arena frame (m or m/s)."""
+        J = self.jacobian(u, v)
+        return float(J[0, 0] * du + J[0, 1] * dv), float(J[1, 0] * du + J[1, 1] * dv)
+
+    def heading_to_arena(self, u: float, v: float, heading_px: float) -> float:
+        """Heading in the sensor frame (rad from +u towards +v) -> arena yaw (rad, CCW from +x)."""
+        ax, ay = self.vector_to_arena(u, v, math.cos(heading_px), math.sin(heading_px))
+        return math.atan2(ay, ax)
+
+    def reprojection_error_m(self) -> float:
+        """RMS distance between the fitted and the given arena points, m."""
+        d = self.to_arena(self.pixels) - self.arena_m
+        return float(np.sqrt((d ** 2).sum(1).mean()))
+
+
+def _apply(H: np.ndarray, pts) -> np.ndarray:
+    p = np.asarray(pts, dtype=np.float64)
+    single = p.ndim == 1
+    p = p.reshape(-1, 2)
+    q = p @ H[:, :2].T + H[:, 2]
+    out = q[:, :2] / q[:, 2:3]
+    return out[0] if single else out
+
+
+def load_calibration(path: str | Path, camera: str | None = None) -> Calibration:
+    """Load a calibration JSON file, or a lab config TOML (its camera ``camera`` or the first)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CalibrationError(f"{path}: no such calibration file")
+    if path.suffix.lower() == ".toml":
+        from arena.config import ConfigError, load_lab_config
+
+        try:
+            cam = load_lab_config(path).camera(camera)
+        except ConfigError as exc:
+            raise CalibrationError(str(exc)) from None
+        if cam.calibration is None:
+            raise CalibrationError(f"{path}: camera {cam.name!r} has no calibration")
+        return Calibration.from_dict(cam.calibration, f"{path} camera {cam.name}")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CalibrationError(f"{path}: not a readable JSON file ({exc})") from None
+    return Calibration.from_dict(data, str(path))

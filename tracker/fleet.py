@@ -1,0 +1,289 @@
+"""The default fleet tracker: Kalman prediction, gating, optimal assignment, life cycle.
+
+Arena frame throughout: metres, m/s, yaw in rad counter-clockwise from +x, times in µs.
+
+- Each track runs a constant-velocity Kalman filter on ``(x, y, vx, vy)``, updated with the
+  detection's position (and its velocity when the detector measured one), and a heading
+  filter on ``(yaw, yaw_rate)`` fed with the motion heading, which refers to the middle of
+  the detection window: the filter predicts it forward to the pose time (no heading lag).
+- Detections are assigned to predicted tracks by the Hungarian algorithm
+  (``scipy.optimize.linear_sum_assignment``) on Euclidean distance, gated.
+- Life cycle: a new track is *tentative* until ``confirm_hits`` detections; a confirmed
+  track that misses a detection is *coasting*. An event camera sees only motion, so a
+  robot without events has stopped: a coasting track brakes to rest (``stop_tau_s``) and
+  stays where it stopped, with its ID, for as long as needed (robots do not vanish). A
+  detection closer than one chassis to an existing track never starts a new track (two
+  robots cannot overlap), and ``fleet_size`` caps the confirmed tracks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from tracker.objects import COASTING, CONFIRMED, TENTATIVE, Observation, TrackedRobot
+
+__all__ = ["FleetTracker", "FleetConfig"]
+
+
+@dataclass
+class FleetConfig:
+    """Physical parameters of the fleet tracker.
+
+    Attributes:
+        chassis_m: robot footprint side, m: no new track within it of another track.
+        gate_m: largest distance between a prediction and its detection, m.
+        accel_mps2: process noise, white acceleration 1-sigma, m/s^2.
+        pos_sigma_m: detection position noise, m.
+        vel_sigma_mps: floor of the detection velocity noise, m/s.
+        yaw_accel_radps2: heading process noise, rad/s^2.
+        min_speed_mps: speed above which the motion heading is trusted, m/s.
+        confirm_hits: detections needed to confirm a track.
+        tentative_max_misses: consecutive misses that delete a tentative track.
+        stop_tau_s: time constant with which a coasting track brakes to rest, s.
+        fleet_size: most confirmed tracks (None: unlimited).
+        lost_s: a coasting track unseen this long may be re-acquired anywhere when the fleet
+            is full and a new robot-sized object keeps being detected elsewhere, s.
+    """
+
+    chassis_m: float = 0.10
+    gate_m: float = 0.08
+    accel_mps2: float = 3.0
+    pos_sigma_m: float = 0.004
+    vel_sigma_mps: float = 0.03
+    yaw_accel_radps2: float = 30.0
+    min_speed_mps: float = 0.04
+    confirm_hits: int = 4
+    tentative_max_misses: int = 3
+    stop_tau_s: float = 0.05
+    fleet_size: int | None = None
+    lost_s: float = 2.0
+
+    def validate(self) -> None:
+        for name in ("chassis_m", "gate_m", "accel_mps2", "pos_sigma_m", "vel_sigma_mps",
+                     "yaw_accel_radps2", "stop_tau_s", "lost_s"):
+            val = getattr(self, name)
+            if not (val > 0 and math.isfinite(val)):
+                raise ValueError(f"fleet tracker {name} must be a positive number, got {val!r}")
+        if self.confirm_hits < 1 or self.tentative_max_misses < 1:
+            raise ValueError("confirm_hits and tentative_max_misses must be >= 1")
+        if self.fleet_size is not None and self.fleet_size < 1:
+            raise ValueError(f"fleet_size must be >= 1 or None, got {self.fleet_size!r}")
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
+
+
+class _Track:
+    """One tracked robot: its filters and life cycle."""
+
+    def __init__(self, tid: int, ob: Observation, cfg: FleetConfig) -> None:
+        self.id = tid
+        self.cfg = cfg
+        vx = ob.vx if math.isfinite(ob.vx) else 0.0
+        vy = ob.vy if math.isfinite(ob.vy) else 0.0
+        self.x = np.array([ob.x, ob.y, vx, vy], dtype=float)
+        s_v = 0.3 if not math.isfinite(ob.vx) else max(cfg.vel_sigma_mps, ob.speed_sigma if math.isfinite(ob.speed_sigma) else 0.0)
+        self.P = np.diag([cfg.pos_sigma_m ** 2, cfg.pos_sigma_m ** 2, s_v ** 2, s_v ** 2])
+        self.t_us = int(ob.t_us)
+        self.yaw = math.nan
+        self.yaw_rate = 0.0
+        self.Py = np.diag([1.0, 1.0])
+        self.state = TENTATIVE
+        self.age = 0
+        self.hits = 1
+        self.misses = 0
+        self.last_seen_us = int(ob.t_us)
+        self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
+        self.robot: str | None = None
+        self._update_yaw(ob)
+
+    # -- motion ----------------------------------------------------------
+    def predict(self, t_us: int) -> None:
+        dt = (int(t_us) - self.t_us) * 1e-6
+        if dt <= 0:
+            return
+        F = np.eye(4)
+        F[0, 2] = F[1, 3] = dt
+        q = self.cfg.accel_mps2 ** 2
+        G = np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]) * q
+        Q = np.zeros((4, 4))
+        Q[np.ix_([0, 2], [0, 2])] = G
+        Q[np.ix_([1, 3], [1, 3])] = G
+        self.x = F @ self.x
+        self.P = F @ self.P @ F.T + Q
+        if not math.isnan(self.yaw):
+            self.yaw = _wrap(self.yaw + self.yaw_rate * dt)
+            Fy = np.array([[1.0, dt], [0.0, 1.0]])
+            qy = self.cfg.yaw_accel_radps2 ** 2
+            Qy = np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]) * qy
+            self.Py = Fy @ self.Py @ Fy.T + Qy
+        self.t_us = int(t_us)
+
+    def coast(self, t_us: int) -> None:
+        """No detection: the robot is at rest (or braking to rest)."""
+        dt = (int(t_us) - self.last_seen_us) * 1e-6
+        decay = math.exp(-max(dt, 0.0) / self.cfg.stop_tau_s)
+        self.x[2:] *= decay
+        self.yaw_rate *= decay
+        self.misses += 1
+        self.n_events = 0
+        if self.state != TENTATIVE:
+            self.state = COASTING
+
+    def update(self, ob: Observation) -> None:
+        cfg = self.cfg
+        if math.isfinite(ob.vx) and math.isfinite(ob.vy):
+            sv = max(cfg.vel_sigma_mps, ob.speed_sigma if math.isfinite(ob.speed_sigma) else 0.0)
+            H = np.eye(4)
+            z = np.array([ob.x, ob.y, ob.vx, ob.vy])
+            R = np.diag([cfg.pos_sigma_m ** 2] * 2 + [sv ** 2] * 2)
+        else:
+            H = np.eye(4)[:2]
+            z = np.array([ob.x, ob.y])
+            R = np.eye(2) * cfg.pos_sigma_m ** 2
+        y = z - H @ self.x
+        S = H @ self.P @ H.T + R
+        K = self.P @ H.T @ np.linalg.inv(S)
+        self.x = self.x + K @ y
+        self.P = (np.eye(4) - K @ H) @ self.P
+        self._update_yaw(ob)
+        self.hits += 1
+        self.misses = 0
+        self.last_seen_us = int(ob.t_us)
+        self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
+        if self.state == TENTATIVE and self.hits >= cfg.confirm_hits:
+            self.state = CONFIRMED
+        elif self.state == COASTING:
+            self.state = CONFIRMED
+
+    def _update_yaw(self, ob: Observation) -> None:
+        """Heading filter: the motion heading (at t_vel) predicted to the pose time."""
+        if not math.isfinite(ob.yaw):
+            return
+        speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
+        if speed < self.cfg.min_speed_mps:
+            return
+        lag = ((ob.t_us - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
+        if math.isnan(self.yaw) or self.misses > 0 and abs(_wrap(ob.yaw + self.yaw_rate * lag - self.yaw)) > math.radians(30):
+            # first heading, or the robot turned while it was not seen: restart the filter
+            self.yaw = _wrap(ob.yaw)
+            self.yaw_rate = 0.0
+            self.Py = np.diag([math.radians(10) ** 2, 1.0])
+            return
+        # measurement: yaw at t - lag = yaw - rate * lag
+        Hy = np.array([[1.0, -lag]])
+        sy = math.radians(4.0) ** 2
+        if math.isfinite(ob.speed_sigma) and speed > 0:
+            sy += (ob.speed_sigma / speed) ** 2
+        innov = _wrap(ob.yaw - (self.yaw - self.yaw_rate * lag))
+        S = float(Hy @ self.Py @ Hy.T) + sy
+        K = (self.Py @ Hy.T / S).ravel()
+        self.yaw = _wrap(self.yaw + K[0] * innov)
+        self.yaw_rate = self.yaw_rate + K[1] * innov
+        self.Py = (np.eye(2) - np.outer(K, Hy)) @ self.Py
+
+    def report(self) -> TrackedRobot:
+        return TrackedRobot(track_id=self.id, x=float(self.x[0]), y=float(self.x[1]), t_us=self.t_us,
+                            vx=float(self.x[2]), vy=float(self.x[3]), yaw=self.yaw, state=self.state,
+                            age=self.age, hits=self.hits, misses=self.misses, u=self.u, v=self.v,
+                            n_events=self.n_events, robot=self.robot)
+
+
+class FleetTracker:
+    """Multi-robot tracker with a small norfair-like API: ``update(observations, t_us)``.
+
+    Args:
+        config: :class:`FleetConfig` (physical units).
+        report_tentative: also report tentative tracks.
+    """
+
+    def __init__(self, config: FleetConfig | None = None, report_tentative: bool = False) -> None:
+        self.config = config or FleetConfig()
+        self.config.validate()
+        self.report_tentative = report_tentative
+        self.tracks: list[_Track] = []
+        self._next_id = 1
+
+    def predictions(self, t_us: int) -> np.ndarray:
+        """Predicted (x, y) of the confirmed and coasting tracks at ``t_us``, m: (k, 2)."""
+        out = []
+        for tr in self.tracks:
+            if tr.state == TENTATIVE:
+                continue
+            dt = max(0.0, (int(t_us) - tr.t_us) * 1e-6)
+            out.append(tr.x[:2] + tr.x[2:] * dt)
+        return np.array(out, dtype=float).reshape(-1, 2)
+
+    def update(self, observations: list[Observation], t_us: int) -> list[TrackedRobot]:
+        """Advance to ``t_us`` (µs), assign the observations, return the current tracks."""
+        cfg = self.config
+        for tr in self.tracks:
+            tr.predict(t_us)
+            tr.age += 1
+        # confirmed tracks first, so that they win over tentative ones
+        order = sorted(range(len(self.tracks)), key=lambda i: self.tracks[i].state == TENTATIVE)
+        tracks = [self.tracks[i] for i in order]
+        unmatched_obs = set(range(len(observations)))
+        matched_tracks: set[int] = set()
+        for group in (False, True):
+            idx = [i for i, tr in enumerate(tracks) if (tr.state == TENTATIVE) == group and i not in matched_tracks]
+            obs = sorted(unmatched_obs)
+            if not idx or not obs:
+                continue
+            cost = np.empty((len(idx), len(obs)))
+            for a, i in enumerate(idx):
+                tr = tracks[i]
+                gate = cfg.gate_m if tr.misses == 0 else min(cfg.gate_m + 0.5 * cfg.chassis_m * tr.misses,
+                                                             1.5 * cfg.chassis_m)
+                for b, j in enumerate(obs):
+                    d = math.hypot(observations[j].x - tr.x[0], observations[j].y - tr.x[1])
+                    cost[a, b] = d if d <= gate else 1e6
+            rows, cols = linear_sum_assignment(cost)
+            for r, c in zip(rows, cols):
+                if cost[r, c] >= 1e6:
+                    continue
+                tracks[idx[r]].update(observations[obs[c]])
+                matched_tracks.add(idx[r])
+                unmatched_obs.discard(obs[c])
+        for i, tr in enumerate(tracks):
+            if i not in matched_tracks:
+                tr.coast(t_us)
+        # drop tentative tracks that keep missing
+        self.tracks = [tr for tr in tracks if not (tr.state == TENTATIVE and tr.misses >= cfg.tentative_max_misses)]
+        self._births(observations, sorted(unmatched_obs), t_us)
+        self._fleet_cap(t_us)
+        self.tracks.sort(key=lambda tr: tr.id)
+        return [tr.report() for tr in self.tracks if self.report_tentative or tr.state != TENTATIVE]
+
+    def _births(self, observations: list[Observation], idx: list[int], t_us: int) -> None:
+        cfg = self.config
+        for j in idx:
+            ob = observations[j]
+            near = any(math.hypot(ob.x - tr.x[0], ob.y - tr.x[1]) < cfg.chassis_m for tr in self.tracks)
+            if near:
+                continue
+            self.tracks.append(_Track(self._next_id, ob, cfg))
+            self._next_id += 1
+
+    def _fleet_cap(self, t_us: int) -> None:
+        """With a known fleet size, confirmed tracks beyond it (the newest) are not robots,
+        unless an older track has been lost for ``lost_s``: that one (keeping its ID) takes
+        over the new track's state (a robot carried elsewhere, or lost and found)."""
+        cap = self.config.fleet_size
+        if cap is None:
+            return
+        active = sorted((tr for tr in self.tracks if tr.state != TENTATIVE), key=lambda tr: tr.id)
+        for tr in active[cap:]:
+            lost = [c for c in active[:cap] if c.state == COASTING
+                    and (t_us - c.last_seen_us) * 1e-6 >= self.config.lost_s]
+            if lost:
+                old = min(lost, key=lambda c: c.last_seen_us)
+                old.x, old.P, old.yaw, old.yaw_rate = tr.x.copy(), tr.P.copy(), tr.yaw, tr.yaw_rate
+                old.state, old.misses, old.last_seen_us = CONFIRMED, 0, tr.last_seen_us
+                old.u, old.v, old.n_events = tr.u, tr.v, tr.n_events
+            self.tracks.remove(tr)

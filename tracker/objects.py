@@ -1,0 +1,78 @@
+"""Records shared by the trackers: what goes in (observations) and what comes out (tracks).
+
+Both are in the arena frame (metres, m/s, yaw in rad counter-clockwise from +x) with the
+sensor-frame pixel position kept alongside (u column right, v row down, px).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["Observation", "TrackedRobot", "TENTATIVE", "CONFIRMED", "COASTING"]
+
+TENTATIVE = "tentative"
+CONFIRMED = "confirmed"
+COASTING = "coasting"
+
+
+@dataclass
+class Observation:
+    """One detection in the arena frame.
+
+    Attributes:
+        x, y: position, m, at ``t_us``.
+        t_us: time of the position, µs (input clock).
+        vx, vy: velocity, m/s (NaN when unknown), estimated at ``t_vel_us``.
+        speed_sigma: 1-sigma uncertainty of the velocity, m/s (NaN when unknown).
+        yaw: heading, rad (NaN when unknown), at ``t_vel_us``.
+        yaw_source: ``"motion"``, ``"polarity"`` or ``""``.
+        u, v: position in the sensor frame, px.
+        n_events: events in the cluster.
+        t_vel_us: time the velocity and the heading refer to (the cluster's mean event time), µs.
+    """
+
+    x: float
+    y: float
+    t_us: int
+    vx: float = math.nan
+    vy: float = math.nan
+    speed_sigma: float = math.nan
+    yaw: float = math.nan
+    yaw_source: str = ""
+    u: float = math.nan
+    v: float = math.nan
+    n_events: int = 0
+    t_vel_us: int | None = None
+
+
+@dataclass
+class TrackedRobot:
+    """A track as the trackers report it (one per track per update).
+
+    Attributes:
+        track_id: stable integer id (1, 2, ...).
+        x, y: position, m; vx, vy: velocity, m/s; yaw: rad CCW from +x (NaN when unknown).
+        t_us: time the pose refers to, µs.
+        state: ``tentative``, ``confirmed`` or ``coasting`` (not detected in this update).
+        age: updates since the track was born; hits: updates with a detection;
+        misses: consecutive updates without one.
+        u, v: last sensor position, px; n_events: events of the last detection (0 when coasting).
+        robot: robot name when known, else None.
+    """
+
+    track_id: int
+    x: float
+    y: float
+    t_us: int
+    vx: float = math.nan
+    vy: float = math.nan
+    yaw: float = math.nan
+    state: str = CONFIRMED
+    age: int = 0
+    hits: int = 0
+    misses: int = 0
+    u: float = math.nan
+    v: float = math.nan
+    n_events: int = 0
+    robot: str | None = None
