@@ -97,7 +97,8 @@ def register_experiment(sub) -> None:
         epilog="Examples:\n"
                "  arena experiment paper --out study/               # the full study (< 30 min)\n"
                "  arena experiment paper --out /tmp/ci --quick      # a short version for CI (~2 min)\n"
-               "  arena experiment paper --out study/ --seed 7 --only table,lighting")
+               "  arena experiment paper --out study/ --seed 7 --only table,lighting\n"
+               "Exit code 0 when every run succeeded, 1 when some failed (listed in the report), 2 for bad options.")
     p.add_argument("study", choices=["paper"], help="which study to run (the paper's)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for the report")
     p.add_argument("--quick", action="store_true", help="short runs and coarse sweeps (CI)")
@@ -119,10 +120,170 @@ def run_experiment(args: argparse.Namespace) -> int:
               f"{','.join(PARTS)}", file=sys.stderr)
         return 2
     try:
-        report = run_paper_study(Path(args.out), quick=args.quick, seed=args.seed, parts=parts,
-                                 progress=not args.no_progress)
+        study = run_paper_study(Path(args.out), quick=args.quick, seed=args.seed, parts=parts,
+                                progress=not args.no_progress)
     except ExperimentError as exc:
         print(f"arena experiment: {exc}", file=sys.stderr)
         return 2
-    print(f"report written to {report}")
+    print(f"report written to {study.report} ({study.seconds:.0f} s)")
+    for f in study.failures:
+        print(f"arena experiment: run failed: {f['step']}: {f['error']}", file=sys.stderr)
+    return 1 if study.failures else 0
+
+
+# --------------------------------------------------------------------------------------------
+# arena groundtruth
+# --------------------------------------------------------------------------------------------
+def register_groundtruth(sub) -> None:
+    """Add ``arena groundtruth``: robot poses from an RGB webcam (ArUco markers or shell colours)."""
+    from arena.session import add_zenoh_arguments
+
+    p = sub.add_parser(
+        "groundtruth", help="ground-truth robot poses from an RGB webcam (ArUco or colour)",
+        formatter_class=_formatter,
+        description="Read a webcam (device index, video file or URL such as the simulator's MJPEG\n"
+                    "stream), detect the robots with ArUco markers (unique ids and heading) or shell\n"
+                    "colours (HSV + contours; heading from the front mark or the motion), map them to\n"
+                    "arena metres with a homography calibrated at shell-top height, and publish\n"
+                    "arena/groundtruth/<robot>. Optionally write the CSV\n"
+                    "t_us,robot,x_m,y_m,yaw_rad,u_px,v_px,detector and annotated frames.\n"
+                    "Defaults for --video, --calibration, --detector and the robots come from the\n"
+                    "lab config ([webcam] and [[robots]]) when --lab or ARENA_LAB is given.",
+        epilog="Examples:\n"
+               "  arena groundtruth --video http://127.0.0.1:8090/stream.mjpg \\\n"
+               "      --calibration http://127.0.0.1:8090/calibration.json --csv gt.csv\n"
+               "  arena groundtruth --video 0 --calibration webcam_calib.json --detector aruco \\\n"
+               "      --marker 0=zumo1 --marker 1=zumo2 --csv gt.csv\n"
+               "  arena groundtruth --video run.avi --calibration webcam_calib.json --detector hsv \\\n"
+               "      --robot zumo1=red --robot zumo2=#2850dc --no-zenoh --csv gt.csv --annotate ann.avi\n"
+               "  arena groundtruth --video run.avi --sample-hsv 320,240   # print the HSV range there\n"
+               "  arena groundtruth --lab deploy/lab.toml --csv gt.csv\n"
+               "Exit code 0 when the source ends or on Ctrl-C, 2 for bad input.")
+    p.add_argument("--video", metavar="SRC", help="device index, video file or URL (default: lab [webcam] source)")
+    p.add_argument("--calibration", metavar="JSON|URL",
+                   help="calibration JSON (file or http URL) at shell-top height (default: lab [webcam])")
+    p.add_argument("--detector", choices=("aruco", "hsv"), help="detector (default: lab [webcam] or aruco)")
+    p.add_argument("--robot", metavar="NAME=COLOUR", action="append", default=[],
+                   help="colour detector robot: NAME=#rrggbb, NAME=red|green|..., or NAME=h,s,v:h,s,v "
+                        "(an HSV range); repeatable")
+    p.add_argument("--marker", metavar="ID=NAME", action="append", default=[],
+                   help="ArUco id of a robot, repeatable (unknown ids are ignored when any is given)")
+    p.add_argument("--no-front-mark", action="store_true",
+                   help="colour detector: shells have no front mark (heading from motion only)")
+    p.add_argument("--csv", metavar="OUT", help="write detections to this CSV")
+    p.add_argument("--annotate", metavar="OUT", help="annotated frames: a .avi/.mp4 video or a directory of PNGs")
+    p.add_argument("--name", default="webcam", help="service name in arena status (default webcam)")
+    p.add_argument("--no-zenoh", action="store_true", help="do not publish (files only)")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
+    p.add_argument("--sample-hsv", metavar="U,V",
+                   help="print the HSV range around pixel U,V of the first frame (for the lab config) and exit")
+    add_zenoh_arguments(p)
+    p.set_defaults(func=run_groundtruth)
+
+
+def _parse_robot_colour(text: str):
+    from arena.config import NAMED_COLOURS
+
+    name, sep, value = text.partition("=")
+    if not sep or not name or not value:
+        raise ValueError(f"--robot {text!r}: expected NAME=COLOUR")
+    v = value.strip().lower()
+    if v in NAMED_COLOURS:
+        return name, tuple(NAMED_COLOURS[v])
+    if v.startswith("#") and len(v) == 7:
+        return name, tuple(int(v[i:i + 2], 16) for i in (1, 3, 5))
+    if ":" in v:
+        lo, hi = v.split(":", 1)
+        return name, [[int(x) for x in lo.split(",")], [int(x) for x in hi.split(",")]]
+    raise ValueError(f"--robot {text!r}: colour must be a name, #rrggbb or h,s,v:h,s,v")
+
+
+def run_groundtruth(args: argparse.Namespace) -> int:
+    """Run ``arena groundtruth``; returns the exit code."""
+    from arena.config import ConfigError
+    from arena.session import load_lab_from_args
+    from groundtruth.homography import CalibrationError
+    from groundtruth.rgb import FrameSource, sample_hsv_range
+    from groundtruth.service import SetupError, build_detector, load_calibration_any
+
+    def fail(msg: str) -> int:
+        print(f"arena groundtruth: {msg}", file=sys.stderr)
+        return 2
+
+    try:
+        lab = load_lab_from_args(args)
+    except ConfigError as exc:
+        return fail(str(exc))
+    cam = lab.webcam if lab is not None else None
+    video = args.video if args.video is not None else (cam.source if cam else None)
+    if video is None:
+        return fail("no video source: give --video INDEX|FILE|URL or a lab config with [webcam] source")
+    try:
+        colours = dict(_parse_robot_colour(r) for r in args.robot)
+        markers = {}
+        for m in args.marker:
+            i, sep, name = m.partition("=")
+            if not sep or not name or not i.strip().isdigit():
+                raise ValueError(f"--marker {m!r}: expected ID=NAME with an integer ID")
+            markers[int(i)] = name
+    except ValueError as exc:
+        return fail(str(exc))
+    try:
+        source = FrameSource(video)
+    except OSError as exc:
+        return fail(str(exc))
+    with source:
+        if args.sample_hsv:
+            try:
+                u, v = (float(c) for c in args.sample_hsv.split(","))
+                got = source.read()
+                if got is None:
+                    return fail(f"no frame from {video}")
+                rng = sample_hsv_range(got[1], (u, v))
+            except ValueError as exc:
+                return fail(f"--sample-hsv: {exc}")
+            print(f"hsv_range = [[{', '.join(map(str, rng.lo))}], [{', '.join(map(str, rng.hi))}]]")
+            return 0
+        calib = args.calibration or (cam.calibration_file or cam.calibration if cam else None)
+        if calib is None:
+            return fail("no calibration: give --calibration FILE|URL or a lab [webcam] calibration")
+        try:
+            homography = load_calibration_any(calib)
+            kind = args.detector or (cam.detector if cam else "aruco")
+            detector = build_detector(kind, homography, lab.robots if lab else (), markers, colours,
+                                      front_mark=not args.no_front_mark)
+        except (CalibrationError, SetupError) as exc:
+            return fail(str(exc))
+        return _run_loop(args, lab, source, detector)
+
+
+def _run_loop(args, lab, source, detector) -> int:
+    import contextlib
+
+    from arena.service import Service, stop_on_signals
+    from arena.session import open_session
+    from groundtruth.service import GroundTruthRunner
+
+    stop = stop_on_signals()
+    with contextlib.ExitStack() as stack:
+        session = svc = None
+        if not args.no_zenoh:
+            session = stack.enter_context(open_session(args, lab))
+            svc = stack.enter_context(Service(session, "groundtruth", args.name))
+        try:
+            runner = GroundTruthRunner(session, source, detector, svc, args.csv, args.annotate)
+        except OSError as exc:
+            print(f"arena groundtruth: cannot write output: {exc}", file=sys.stderr)
+            return 2
+        stack.callback(runner.close)
+        print(f"arena groundtruth: {detector.name} detector on {source.source}"
+              + ("" if session is None else f", publishing arena/groundtruth/* as groundtruth/{args.name}"),
+              flush=True)
+        try:
+            runner.run(stop, max_frames=args.max_frames, duration_s=args.duration)
+        except KeyboardInterrupt:
+            pass
+        print(f"arena groundtruth: {runner.frames} frames, {runner.detections} detections, "
+              f"robots seen: {', '.join(sorted(runner.seen)) or 'none'}", flush=True)
     return 0

@@ -1,0 +1,7 @@
+"""``python -m groundtruth ...`` is ``arena groundtruth ...``."""
+
+import sys
+
+from arena.cli import main
+
+sys.exit(main(["groundtruth", *sys.argv[1:]]))
