@@ -29,7 +29,6 @@ import time
 import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -124,49 +123,41 @@ class Recording:
 
 def simulate(n_robots: int, pattern: str, power: int, duration_s: float, lighting: str,
              seed: int) -> Recording:
-    """Run one scenario on the simulator (power in %)."""
-    try:
-        from simulator.scenarios import Scenario, generate
-    except ImportError as exc:
-        raise ExperimentError(f"the simulator's scenarios are not available ({exc})") from None
+    """Run one scenario on the simulator (power in %; robots shell colours cycle black, yellow, ...)."""
+    from simulator.scenarios import Scenario, generate
+
     t0 = time.perf_counter()
     rec = generate(Scenario(n_robots=n_robots, pattern=pattern, power=power / 100.0,
                             duration_s=duration_s, lighting=lighting, seed=seed))
-    return Recording(events=rec.events, truth=_as_truth(rec.truth), calibration=rec.calibration,
+    names = np.asarray(rec.robot_names)
+    truth = np.empty(len(rec.truth), dtype=TRUTH_DTYPE)
+    truth["robot"] = names[rec.truth["robot"]]
+    for name in ("t_us", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps"):
+        truth[name] = rec.truth[name]
+    return Recording(events=rec.events, truth=truth, calibration=rec.calibration,
                      width=int(rec.width), height=int(rec.height), seconds=time.perf_counter() - t0)
 
 
-def track(rec: Recording, tracker: str, t_a_ms: float) -> tuple[np.ndarray, float]:
-    """Run the tracker's offline pipeline on a recording; returns (tracks, wall seconds)."""
-    try:
-        from tracker.pipeline import track_events
-    except ImportError as exc:
-        raise ExperimentError(f"the tracker's offline pipeline is not available ({exc})") from None
+def track(rec: Recording, tracker: str, t_a_ms: float, slice_us: int = 10_000) -> tuple[np.ndarray, float]:
+    """Run the tracker's offline pipeline on a recording; returns (tracks, wall seconds).
+
+    ``idtrack`` is the paper's whole method (paper detector + Algorithm 1); ``fleet`` the
+    project's default detector and tracker, with default parameters (no fleet size given).
+    """
+    from tracker.calibration import Calibration
+    from tracker.pipeline import Pipeline, iter_slices
+
+    pipe = Pipeline(Calibration.from_dict(rec.calibration), tracker=tracker,
+                    detector="paper" if tracker == "idtrack" else "default",
+                    accumulation_us=int(round(t_a_ms * 1000)))
+    rows = []
     t0 = time.perf_counter()
-    rows = track_events(rec.events, rec.calibration, tracker=tracker, t_a_us=int(t_a_ms * 1000),
-                        width=rec.width, height=rec.height)
-    return _as_tracks(rows), time.perf_counter() - t0
-
-
-def _as_truth(truth) -> np.ndarray:
-    """Any structured array or record list with t_us, robot, x_m, y_m[, yaw_rad, vx_mps, vy_mps]."""
-    arr = np.asarray(truth)
-    out = np.empty(len(arr), dtype=TRUTH_DTYPE)
-    for name in TRUTH_DTYPE.names:
-        out[name] = arr[name] if name in (arr.dtype.names or ()) else np.nan
-    return out
-
-
-def _as_tracks(rows) -> np.ndarray:
-    arr = np.asarray(rows)
-    out = np.empty(len(arr), dtype=TRACK_DTYPE)
-    names = arr.dtype.names or ()
-    for name in TRACK_DTYPE.names:
-        if name in names:
-            out[name] = arr[name]
-        else:
-            out[name] = {"U": "", "i": -1}.get(TRACK_DTYPE[name].kind, np.nan)
-    return out
+    for t_end, ev in iter_slices([rec.events], slice_us):
+        for tr in pipe.push(ev, t_end):
+            rows.append((tr.t_us, str(tr.track_id), tr.robot or "", tr.x, tr.y, tr.yaw, tr.vx, tr.vy,
+                         tr.u, tr.v, tr.state, tr.n_events))
+    secs = time.perf_counter() - t0
+    return np.array(rows, dtype=TRACK_DTYPE) if rows else np.zeros(0, TRACK_DTYPE), secs
 
 
 # ------------------------------------------------------------------------------------------
@@ -232,8 +223,10 @@ class Study:
     parts: list[str]
     runs: list[dict] = field(default_factory=list)     # one per (scenario, tracker, t_a)
     minpts: list[dict] = field(default_factory=list)   # one per (power, kind)
+    failures: list[dict] = field(default_factory=list)  # steps that raised: {"step", "error"}
     seconds: float = 0.0
     machine: str = ""
+    report: Path | None = None
 
 
 def _score_row(rec: Recording, tracker: str, t_a_ms: float, **scenario) -> dict:
@@ -246,9 +239,11 @@ def _score_row(rec: Recording, tracker: str, t_a_ms: float, **scenario) -> dict:
 
 
 def run_paper_study(out: Path, quick: bool = False, seed: int = 1, parts=PARTS,
-                    progress: bool = True, plan: StudyPlan | None = None,
-                    bar: Callable | None = None) -> Path:
-    """Run the study and write ``out/report.md`` (+ plots, ``study.json``); returns the report path."""
+                    progress: bool = True, plan: StudyPlan | None = None) -> Study:
+    """Run the study and write ``out/report.md`` (+ plots, ``study.json``); returns the results.
+
+    A step that raises is recorded in ``Study.failures`` (and the report) and the study goes on.
+    """
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -258,20 +253,24 @@ def run_paper_study(out: Path, quick: bool = False, seed: int = 1, parts=PARTS,
     study = Study(seed=seed, quick=quick, plan=asdict(plan), parts=list(parts),
                   machine=f"{platform.machine()}, {platform.python_implementation()} {platform.python_version()}")
     steps = _steps(plan, parts)
-    if bar is None:
-        from tqdm import tqdm
+    from tqdm import tqdm
 
-        bar = tqdm(total=len(steps), desc="paper study", unit="run", disable=not progress)
+    bar = tqdm(total=len(steps), desc="paper study", unit="run", disable=not progress)
     t_start = time.perf_counter()
     cache: dict[tuple, Recording] = {}
     with bar:
         for key, what in steps:
             bar.set_postfix_str(what, refresh=True)
-            _run_step(study, plan, key, cache, seed)
+            try:
+                _run_step(study, plan, key, cache, seed)
+            except Exception as exc:  # a failing component must not lose the rest of the study
+                log.exception("step %s failed", what)
+                study.failures.append({"step": what, "error": f"{type(exc).__name__}: {exc}"})
             bar.update(1)
     study.seconds = round(time.perf_counter() - t_start, 1)
     (out / "study.json").write_text(json.dumps(asdict(study), indent=1) + "\n")
-    return write_study_report(out, study, plan)
+    study.report = write_study_report(out, study, plan)
+    return study
 
 
 def _steps(plan: StudyPlan, parts) -> list[tuple[tuple, str]]:
@@ -439,7 +438,8 @@ def write_study_report(out: Path, study: Study, plan: StudyPlan) -> Path:
         rows = []
         for e in study.minpts:
             best, na, ar = _best_minpts(e)
-            rows.append([e["kind"], f"{e['power']} %", best, fmt(na, "{:.2f}"), fmt(ar, "{:.2f}"),
+            edge = " (sweep edge)" if best in (e["minpts"][0], e["minpts"][-1]) else ""
+            rows.append([e["kind"], f"{e['power']} %", f"{best}{edge}", fmt(na, "{:.2f}"), fmt(ar, "{:.2f}"),
                          PAPER_MINPTS[(e["kind"], e["power"])]])
         md += ["## minPts sweep (1 robot, circle)", "",
                "n_avg-clusters = clusters per robot per 100 ms window; A_ratio = bounding-box area of "
@@ -495,6 +495,9 @@ def write_study_report(out: Path, study: Study, plan: StudyPlan) -> Path:
                "Paper: dimmed numbers as published; in the dark 'the event camera struggled to detect "
                "motion consistently' (no numbers).", "",
                markdown_table(["light", "n", "who", "precision", "recall", "MAE cm", "MOTA", "ID sw"], rows), ""]
+    if study.failures:
+        md += ["## Failed runs", "", markdown_table(["run", "error"], [[f["step"], f["error"].replace("|", "/")]
+                                                                   for f in study.failures]), ""]
     timing = [r["ms_per_update"] for r in study.runs if r.get("ms_per_update") is not None]
     if timing:
         md += ["## Cost", "", f"Tracker wall time per update (detection + tracking, offline, this machine): "
