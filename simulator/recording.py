@@ -1,0 +1,130 @@
+"""Writing simulated recordings: Prophesee RAW (EVT 3.0), the paper's CSV, ``.npz``, truth CSV.
+
+* ``.raw``: Prophesee header lines (``% evt 3.0``, ``% format EVT3;height=H;width=W``,
+  ``% geometry WxH``, ..., ``% end``) followed by EVT 3.0 words (:mod:`simulator.evt3`).
+* ``.csv``: the paper's event CSV, header ``x,y,p,t`` (px, px, 1 = ON / 0 = OFF, µs).
+* ``.npz``: ``events`` (EVENT_DTYPE), ``is_signal``, ``truth``, ``robot_names``,
+  ``calibration`` (JSON string), ``width``, ``height``, ``homography``.
+* truth CSV: ``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps`` with ``robot`` the robot name.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from pathlib import Path
+
+import numpy as np
+
+from arena.events import as_events
+from simulator.evt3 import Evt3Encoder
+
+EVENT_FORMATS = (".raw", ".csv", ".npz")
+
+
+def raw_header(width: int, height: int, serial: str = "SIM00001") -> bytes:
+    """The ``%`` header of a Prophesee EVT 3.0 RAW file for a ``width`` x ``height`` sensor."""
+    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
+    lines = [f"% Date {now}", "% evt 3.0", f"% format EVT3;height={height};width={width}",
+             f"% geometry {width}x{height}", "% integrator_name arena-fleet simulator",
+             "% plugin_name simulator", f"% serial_number {serial}", "% end"]
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
+class RawWriter:
+    """Incremental Prophesee RAW (EVT 3.0) writer: ``write(events)`` slices in time order."""
+
+    def __init__(self, path: str | Path, width: int, height: int):
+        self.path = Path(path)
+        self._f = open(self.path, "wb")
+        self._f.write(raw_header(width, height))
+        self._enc = Evt3Encoder()
+
+    def write(self, events: np.ndarray, until_us: int | None = None) -> None:
+        """Append time-sorted events (µs); ``until_us`` marks time passing without events."""
+        self._f.write(self._enc.encode(as_events(events), until_us))
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "RawWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_events(path: str | Path, events: np.ndarray, width: int, height: int) -> Path:
+    """Write events to ``path``; the format follows the extension (.raw, .csv, .npz)."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    events = as_events(events)
+    if ext == ".raw":
+        with RawWriter(path, width, height) as w:
+            w.write(events)
+    elif ext == ".csv":
+        write_events_csv(path, events)
+    elif ext == ".npz":
+        np.savez_compressed(path, events=events, width=width, height=height)
+    else:
+        raise ValueError(f"unknown event file extension {ext!r} (use one of {EVENT_FORMATS})")
+    return path
+
+
+def write_events_csv(path: str | Path, events: np.ndarray) -> None:
+    """The paper's CSV: header ``x,y,p,t``, one event per line."""
+    ev = as_events(events)
+    table = np.column_stack([ev["x"].astype(np.int64), ev["y"].astype(np.int64),
+                             ev["p"].astype(np.int64), ev["t"]])
+    with open(path, "w") as f:
+        f.write("x,y,p,t\n")
+        np.savetxt(f, table, fmt="%d", delimiter=",")
+
+
+class TruthCsvWriter:
+    """Incremental truth CSV writer: ``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps`` (robot =
+    name; metres, radians CCW from arena +x, m/s; arena frame)."""
+
+    HEADER = "t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps\n"
+
+    def __init__(self, path: str | Path, robot_names: list[str]):
+        self.path = Path(path)
+        self.names = list(robot_names)
+        self._f = open(self.path, "w")
+        self._f.write(self.HEADER)
+
+    def write(self, truth: np.ndarray) -> None:
+        """Append rows of :data:`simulator.simulation.TRUTH_DTYPE`."""
+        names = self.names
+        self._f.writelines(
+            f"{r['t_us']},{names[r['robot']]},{r['x_m']:.5f},{r['y_m']:.5f},"
+            f"{r['yaw_rad']:.5f},{r['vx_mps']:.4f},{r['vy_mps']:.4f}\n" for r in truth)
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> "TruthCsvWriter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def write_truth_csv(path: str | Path, truth: np.ndarray, robot_names: list[str]) -> Path:
+    """Write truth rows to a CSV (see :class:`TruthCsvWriter`)."""
+    with TruthCsvWriter(path, robot_names) as w:
+        w.write(truth)
+    return Path(path)
+
+
+def save_recording(rec, path: str | Path) -> Path:
+    """Save a :class:`simulator.scenarios.Recording`: ``.npz`` keeps everything (events,
+    labels, truth, names, calibration); ``.raw``/``.csv`` keep only the events."""
+    path = Path(path)
+    if path.suffix.lower() != ".npz":
+        return write_events(path, rec.events, rec.width, rec.height)
+    np.savez_compressed(path, events=rec.events, is_signal=rec.is_signal, truth=rec.truth,
+                        robot_names=np.array(rec.robot_names),
+                        calibration=json.dumps(rec.calibration), width=rec.width,
+                        height=rec.height, homography=rec.homography)
+    return path
