@@ -228,11 +228,14 @@ class MissionRunner:
         paper_geometry: geometry the paper mode trusts for its encoder-only phases (default:
             nominal Zumo values, track width 0.09 m, as in the paper).
         estimator: pose source of closed mode (created if None).
+        odometry: the robot's running odometry, shared with ``estimator`` (created at the
+            mission start pose if None). The runner updates both on every sample.
     """
 
     def __init__(self, mission: Mission, geometry: WheelGeometry, mode: str = "paper",
                  paper_geometry: WheelGeometry | None = None, estimator: PoseEstimator | None = None,
-                 pid: PIDGains | None = None, follower: FollowerGains | None = None):
+                 pid: PIDGains | None = None, follower: FollowerGains | None = None,
+                 odometry: Odometry | None = None):
         if mode not in MODES:
             raise ValueError(f"control mode must be one of {MODES}, got {mode!r}")
         self.mission = mission
@@ -240,7 +243,7 @@ class MissionRunner:
         self.geometry = geometry
         self.paper_geometry = paper_geometry or WheelGeometry(
             geometry.sprocket_diameter_m, 0.09, geometry.counts_per_rev, geometry.max_speed_mps)
-        self.odometry = Odometry(geometry, mission.start)
+        self.odometry = odometry or Odometry(geometry, mission.start)
         self.estimator = estimator or PoseEstimator()
         self.pid = WheelPID(geometry.max_speed_mps, pid)
         self.fg = follower or FollowerGains()

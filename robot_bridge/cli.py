@@ -1,0 +1,274 @@
+"""``arena bridge``: run the robot bridge, or send it commands from any host.
+
+Subcommands: ``run`` (the service), ``mission``, ``stop``, ``estop``, ``clear``, ``led``
+(clients of the ``arena/cmd/<robot>/<verb>`` queryables). ``python -m robot_bridge`` is
+the same command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import time
+
+from arena.session import SessionError, add_zenoh_arguments, open_session
+
+log = logging.getLogger("robot_bridge")
+
+EXAMPLES = """\
+Examples:
+  # the service, one robot on Bluetooth and one simulated (arena sim prints the ports)
+  arena bridge run --robot zumo1=/dev/rfcomm0 --robot zumo2=socket://127.0.0.1:5001
+  arena bridge run --lab deploy/lab.toml          # robots and serial_url from the lab config
+
+  # commands, from any host reaching the same Zenoh
+  arena bridge mission zumo1 circle --radius 0.3 --power 50
+  arena bridge mission all square --side 0.6 --power 100 --control closed --start-in 2
+  arena bridge mission zumo2 waypoints --points 0.5,0.5 1.2,0.5 1.2,1.2
+  arena bridge stop all
+  arena bridge estop zumo1 && arena bridge clear zumo1
+  arena bridge led zumo1 255 0 0
+"""
+
+
+def _formatter(prog: str) -> argparse.HelpFormatter:
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=34)
+
+
+def register(subparsers) -> None:
+    """Add ``bridge`` and its subcommands to the ``arena`` parser."""
+    p = subparsers.add_parser(
+        "bridge", help="drive the robots: missions, telemetry, logs, safety", formatter_class=_formatter,
+        description="The robot bridge: serial links (Bluetooth SPP, USB, simulator socket://) to the\n"
+                    "robots, missions (circle, square, ...) in paper or closed-loop mode, telemetry on\n"
+                    "arena/telemetry/<robot>, CSV logs, and commands on arena/cmd/<robot>/<verb>.",
+        epilog=EXAMPLES)
+    sub = p.add_subparsers(dest="bridge_command", metavar="SUBCOMMAND")
+    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+
+    r = sub.add_parser("run", help="run the bridge service", formatter_class=_formatter, epilog=EXAMPLES,
+                       description="Connect to every robot and serve missions and commands until Ctrl-C.\n"
+                                   "Motors are stopped on exit, Ctrl-C, SIGTERM, link or router loss.")
+    r.add_argument("--robot", metavar="NAME=URL", action="append", default=[],
+                   help="robot and pyserial URL, repeatable (/dev/rfcomm0, /dev/ttyACM0, socket://HOST:PORT)")
+    r.add_argument("--name", default=None, help="service name in arena status (default: bridge-<first robot>)")
+    r.add_argument("--log-dir", default=None, help="mission logs directory (default [services.bridge] "
+                                                   "telemetry_dir or ./bridge_logs)")
+    r.add_argument("--geofence-margin", type=float, default=None, metavar="M",
+                   help="stop a robot whose track comes closer than M metres to the arena edge (default 0.03)")
+    r.add_argument("--low-battery-mv", type=int, default=None, help="stop missions below this battery voltage")
+    r.add_argument("--baud", type=int, default=None, help="serial baud rate (default 57600, the firmware's)")
+    r.add_argument("--duration", type=float, default=None, help="stop after this many seconds (tests, demos)")
+    add_zenoh_arguments(r)
+    r.set_defaults(func=run_service)
+
+    m = sub.add_parser("mission", help="start a mission on a robot (or all)", formatter_class=_formatter,
+                       epilog=EXAMPLES,
+                       description="Patterns: circle (--radius, --direction, --laps), square (--side, --direction,\n"
+                                   "--laps), figure8 (--radius, --laps), back_and_forth (--length, --laps),\n"
+                                   "waypoints (--points x,y ...). Stop-and-go with --pause-s/--pause-every.\n"
+                                   "Speed: --power 50|100 (percent) or --speed M/S. Lengths in metres.")
+    m.add_argument("robot", help="robot name, or 'all'")
+    m.add_argument("pattern", choices=("circle", "square", "figure8", "back_and_forth", "waypoints"))
+    m.add_argument("--radius", type=float, help="circle/figure8 radius, m")
+    m.add_argument("--side", type=float, help="square side, m")
+    m.add_argument("--length", type=float, help="back_and_forth length, m")
+    m.add_argument("--laps", type=int, help="number of laps (default 1)")
+    m.add_argument("--direction", choices=("ccw", "cw"), help="turning direction (default ccw)")
+    m.add_argument("--points", nargs="+", metavar="X,Y", help="waypoints in arena metres")
+    m.add_argument("--pause-s", type=float, help="stop-and-go: pause this long ...")
+    m.add_argument("--pause-every", type=float, metavar="M", help="... after every M metres (default: each phase)")
+    g = m.add_mutually_exclusive_group()
+    g.add_argument("--power", type=float, help="motor power in percent (the paper: 50 or 100)")
+    g.add_argument("--speed", type=float, help="tread speed, m/s")
+    m.add_argument("--control", choices=("paper", "closed"), default="paper",
+                   help="paper: encoder PID only; closed: follow the robot's own track (default paper)")
+    m.add_argument("--start-in", type=float, default=None, metavar="S",
+                   help="start in S seconds (several robots start together)")
+    _client_args(m)
+    m.set_defaults(func=run_mission)
+
+    for verb, text in (("stop", "stop the mission and the motors"), ("estop", "emergency stop, latched until clear"),
+                       ("clear", "clear a latched e-stop")):
+        c = sub.add_parser(verb, help=text, formatter_class=_formatter, epilog=EXAMPLES, description=text + ".")
+        c.add_argument("robot", help="robot name, or 'all'")
+        _client_args(c)
+        c.set_defaults(func=run_simple, verb=verb)
+    c = sub.add_parser("led", help="set a robot's LED colour", formatter_class=_formatter, epilog=EXAMPLES)
+    c.add_argument("robot", help="robot name, or 'all'")
+    c.add_argument("rgb", nargs=3, type=int, metavar=("R", "G", "B"), help="0-255 each")
+    _client_args(c)
+    c.set_defaults(func=run_simple, verb="led")
+
+
+def _client_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the bridge's reply")
+    p.add_argument("--operator", default=None, help="who sends the command (recorded in the mission log)")
+    add_zenoh_arguments(p)
+
+
+# --------------------------------------------------------------------------------------------
+def _robots_from(args, lab) -> list:
+    from .odometry import WheelGeometry
+    from .service import RobotSetup, parse_robot_flag
+
+    robots = []
+    flags = {}
+    for value in args.robot:
+        try:
+            name, url = parse_robot_flag(value)
+        except ValueError as exc:
+            raise SystemExit(f"arena bridge run: {exc}") from None
+        flags[name] = url
+    if lab is not None:
+        for rc in lab.robots:
+            url = flags.pop(rc.name, rc.serial_url)
+            if url is None:
+                continue
+            robots.append(RobotSetup(rc.name, url, WheelGeometry(rc.sprocket_diameter_m, rc.track_width_m,
+                                                                  rc.counts_per_rev)))
+    robots += [RobotSetup(name, url) for name, url in flags.items()]
+    return robots
+
+
+def run_service(args) -> int:
+    from arena.service import Service, stop_on_signals
+    from arena.session import load_lab_from_args
+
+    from .service import Bridge, BridgeOptions
+
+    try:
+        lab = load_lab_from_args(args)
+    except Exception as exc:  # ConfigError
+        print(f"arena bridge run: {exc}", file=sys.stderr)
+        return 2
+    robots = _robots_from(args, lab)
+    if not robots:
+        print("arena bridge run: no robots: give --robot NAME=URL or a --lab config whose robots have serial_url",
+              file=sys.stderr)
+        return 2
+    opts = dict(lab.service("bridge")) if lab is not None else {}
+    o = BridgeOptions()
+    if lab is not None:
+        o.arena_size_m = tuple(lab.arena.size_m)
+    o.log_dir = args.log_dir or opts.get("telemetry_dir", o.log_dir)
+    o.geofence_margin_m = args.geofence_margin if args.geofence_margin is not None else float(
+        opts.get("geofence_margin_m", o.geofence_margin_m))
+    o.low_battery_mv = args.low_battery_mv or int(opts.get("low_battery_mv", o.low_battery_mv))
+    o.baudrate = args.baud or int(opts.get("baudrate", o.baudrate))
+    name = args.name or f"bridge-{robots[0].name}"
+    stop = stop_on_signals()
+    try:
+        with open_session(args, lab=lab) as session, Service(session, "bridge", name) as svc:
+            watch = (getattr(args, "mode", None) or (lab.zenoh.mode if lab else "peer")) == "client"
+            with Bridge(session, robots, o, service=svc, watch_router=watch) as bridge:
+                svc.set_state("running")
+                print(f"arena bridge {name}: {', '.join(f'{r.name}={r.url}' for r in robots)}; "
+                      f"logs in {o.log_dir}; commands on arena/cmd/<robot>/<verb>", flush=True)
+                stop.wait(args.duration)
+                del bridge
+    except KeyboardInterrupt:
+        pass
+    except SessionError as exc:
+        print(f"arena bridge run: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _send(args, verb: str, payload: bytes) -> int:
+    from arena.keys import InvalidKey, cmd_key
+    from arena.messages import CommandReply, MessageError
+
+    from .service import fmt_reply
+
+    try:
+        key = cmd_key(args.robot, verb)
+    except InvalidKey as exc:
+        print(f"arena bridge {verb}: {exc}", file=sys.stderr)
+        return 2
+    ok = True
+    n = 0
+    try:
+        with open_session(args) as session:
+            for r in session.get(key, payload=payload, timeout=args.timeout):
+                if r.ok is None:
+                    print(f"arena bridge {verb}: error reply: {r.err.payload.to_string()}", file=sys.stderr)
+                    ok = False
+                    continue
+                try:
+                    reply = CommandReply.decode(r.ok.payload.to_bytes())
+                except MessageError as exc:
+                    print(f"arena bridge {verb}: unreadable reply from {r.ok.key_expr}: {exc}", file=sys.stderr)
+                    ok = False
+                    continue
+                n += 1
+                ok = ok and reply.ok
+                print(fmt_reply(reply), flush=True)
+    except SessionError as exc:
+        print(f"arena bridge {verb}: {exc}", file=sys.stderr)
+        return 2
+    if n == 0:
+        print(f"arena bridge {verb}: no bridge answered for robot {args.robot!r} within {args.timeout} s "
+              "(unknown robot, or no bridge running on this Zenoh)", file=sys.stderr)
+        return 1
+    return 0 if ok else 1
+
+
+def run_mission(args) -> int:
+    from arena.messages import MissionCommand
+
+    params: dict = {}
+    for flag, key in (("radius", "radius_m"), ("side", "side_m"), ("length", "length_m"), ("laps", "laps"),
+                      ("direction", "direction"), ("pause_s", "pause_s"), ("pause_every", "pause_every_m")):
+        v = getattr(args, flag)
+        if v is not None:
+            params[key] = v
+    if args.points:
+        pts = []
+        for p in args.points:
+            try:
+                x, y = (float(c) for c in p.split(","))
+            except ValueError:
+                print(f"arena bridge mission: --points expects X,Y in metres, got {p!r}", file=sys.stderr)
+                return 2
+            if not (math.isfinite(x) and math.isfinite(y)):
+                print(f"arena bridge mission: --points {p!r} is not finite", file=sys.stderr)
+                return 2
+            pts.append([x, y])
+        params["points"] = pts
+    power = None
+    if args.power is not None:
+        if not 0 < args.power <= 100:
+            print(f"arena bridge mission: --power is a percentage in (0, 100], got {args.power}", file=sys.stderr)
+            return 2
+        power = args.power / 100.0
+    if args.speed is not None and not 0 < args.speed <= 2:
+        print(f"arena bridge mission: --speed is m/s in (0, 2], got {args.speed}", file=sys.stderr)
+        return 2
+    start_ns = time.time_ns() + int(args.start_in * 1e9) if args.start_in else None
+    cmd = MissionCommand(mission=args.pattern, params=params, power=power, speed_mps=args.speed,
+                         control=args.control, start_ns=start_ns, operator=args.operator)
+    return _send(args, "mission", cmd.encode())
+
+
+def run_simple(args) -> int:
+    from arena.messages import Command
+
+    params = {"rgb": list(args.rgb)} if args.verb == "led" else {}
+    return _send(args, args.verb, Command(verb=args.verb, params=params, operator=args.operator).encode())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m robot_bridge``: the same as ``arena bridge``."""
+    parser = argparse.ArgumentParser(prog="python -m robot_bridge", formatter_class=_formatter)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    register(sub)
+    args = parser.parse_args(["bridge", *(argv if argv is not None else sys.argv[1:])])
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130

@@ -1,0 +1,524 @@
+"""The robot bridge service: serial links <-> Zenoh, missions, safety, logs.
+
+For every robot (from the lab config or ``--robot NAME=URL``) the bridge keeps a
+:class:`~robot_bridge.link.RobotLink`, publishes each telemetry sample on
+``arena/telemetry/<robot>``, logs it (``robot_bridge.logs``), and runs missions with
+``robot_bridge.control`` on every sample (50-100 Hz), sending SET_MOTORS back.
+
+Commands are Zenoh queryables ``arena/cmd/<robot>/{mission,stop,estop,clear,led}`` (and
+``arena/cmd/all/...``) answered with :class:`arena.messages.CommandReply`: ``ok`` or an
+error starting with one of ``unknown robot``, ``busy``, ``bad parameter``, ``link down``,
+``e-stop latched``. Tracks from ``arena/robots/*`` feed closed-loop control and the
+geofence.
+
+Safety: motors are stopped on exit (also Ctrl-C/SIGTERM), when a mission raises, when a
+robot's link drops (and the robot's own 300 ms watchdog stops it anyway), when the Zenoh
+router is lost (client mode), on e-stop (latched until ``clear``), when a track leaves the
+geofence, and when the battery is low.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import zenoh
+
+from arena.keys import ALL_ROBOTS, COMMAND_VERBS, telemetry_key, validate_name
+from arena.messages import Command, CommandReply, MessageError, MissionCommand, Telemetry, Track, decode
+
+from . import protocol as P
+from .control import MissionRunner, PoseEstimator, path_error
+from .link import LinkDown, RobotLink
+from .logs import MissionLog, Sample
+from .missions import MissionError, build_mission, mission_speed
+from .odometry import Odometry, WheelGeometry
+
+log = logging.getLogger("robot_bridge")
+
+
+class CommandError(Exception):
+    """A command that cannot be carried out; ``str()`` is the reply's error text."""
+
+
+@dataclass
+class BridgeOptions:
+    """Bridge settings (``[services.bridge]`` of the lab config or flags).
+
+    Attributes:
+        arena_size_m: arena rectangle (x, y), m, origin at a mat corner.
+        geofence_margin_m: a robot whose track centre comes closer than this to the arena
+            edge is stopped (its shell is then at the edge), m.
+        low_battery_mv: below this a running mission stops with a warning, mV.
+        log_dir: directory of the mission logs.
+        track_latency_s: assumed age of a track that carries no timing fields, s.
+        track_stale_s: closed loop falls back to odometry when the newest track is older, s.
+        baudrate: serial baud rate (the firmware's 57600).
+        estop_repeats: STOP frames sent on an e-stop.
+    """
+
+    arena_size_m: tuple[float, float] = (1.83, 1.83)
+    geofence_margin_m: float = 0.03
+    low_battery_mv: int = 4400
+    log_dir: str = "bridge_logs"
+    track_latency_s: float = 0.08
+    track_stale_s: float = 0.3
+    baudrate: int = 57600
+    estop_repeats: int = 3
+    max_log_bytes: int = 50 * 1024 * 1024
+
+
+@dataclass
+class RobotSetup:
+    """One robot to bridge: its name, serial URL and geometry."""
+
+    name: str
+    url: str
+    geometry: WheelGeometry = field(default_factory=WheelGeometry)
+
+
+class RobotHandle:
+    """State, missions and safety of one robot (no Zenoh inside; ``publish`` is injected).
+
+    Thread-safe: link frames, tracks and commands arrive on different threads.
+    """
+
+    def __init__(self, setup: RobotSetup, options: BridgeOptions, publish=None, on_error=None):
+        self.name = setup.name
+        self.geometry = setup.geometry
+        self.opt = options
+        self.publish = publish
+        self.on_error = on_error or (lambda msg: log.warning("%s", msg))
+        self.lock = threading.RLock()
+        self.link = RobotLink(setup.url, setup.name, baudrate=options.baudrate,
+                              on_frame=self._on_frame, on_state=self._on_link_state)
+        self.odometry = Odometry(self.geometry)
+        self.estimator = PoseEstimator(stale_s=options.track_stale_s)
+        self.runner: MissionRunner | None = None
+        self.mission_log: MissionLog | None = None
+        self.mission_id: str | None = None
+        self.start_at_ns: int | None = None
+        self.estop = False
+        self.last_result: dict = {}
+        self._seq = P.Unwrapper(16)
+        self._clock = P.Unwrapper(32)
+        self._prev: tuple[int, int, int] | None = None   # robot time µs, enc L, R
+        self._speeds = (0.0, 0.0)
+        self._trace_odo: list[tuple[float, float]] = []
+        self._trace_track: list[tuple[float, float]] = []
+        self.samples = 0
+        self.published = 0
+        self.battery_mv = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        self.link.start()
+
+    def close(self) -> None:
+        """Stop the robot, close its mission log and its link."""
+        with self.lock:
+            self._end_mission("interrupted: bridge shut down")
+        self._stop_motors()
+        self.link.close()
+
+    # ------------------------------------------------------------------ commands
+    def start_mission(self, cmd: MissionCommand) -> dict:
+        """Build and start ``cmd``; returns reply details or raises :class:`CommandError`."""
+        with self.lock:
+            if self.estop:
+                raise CommandError(f"e-stop latched on {self.name}: send 'clear' first")
+            if not self.link.connected:
+                raise CommandError(f"link down: {self.name}: {self.link.last_error}")
+            if self.runner is not None:
+                raise CommandError(f"busy: {self.name} runs mission {self.mission_id} ({self.runner.phase}); "
+                                   "send 'stop' first")
+            now = time.time_ns() / 1e9
+            fresh = self.estimator.source(now) == "track"
+            if cmd.control == "closed" and not fresh:
+                raise CommandError(f"bad parameter: control=closed needs fresh tracks of {self.name} on "
+                                   f"{ALL_ROBOTS} (none for {self.opt.track_stale_s:.1f} s); use control=paper")
+            try:
+                speed = mission_speed(cmd.power, cmd.speed_mps, self.geometry.max_speed_mps)
+                start = self.estimator.pose()
+                mission = build_mission(cmd.mission, dict(cmd.params), start, speed)
+            except MissionError as exc:
+                raise CommandError(f"bad parameter: {exc}") from None
+            if fresh:
+                self._check_inside(mission)
+            mission_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{cmd.mission}"
+            self.runner = MissionRunner(mission, self.geometry, mode=cmd.control, estimator=self.estimator,
+                                        odometry=self.odometry)
+            self.mission_id = mission_id
+            self.start_at_ns = cmd.start_ns
+            self._trace_odo, self._trace_track = [], []
+            self.mission_log = MissionLog(
+                self.opt.log_dir, self.name, mission_id, max_bytes=self.opt.max_log_bytes,
+                manifest={"pattern": cmd.mission, "params": dict(cmd.params), "control": cmd.control,
+                          "speed_mps": speed, "start_pose": list(start), "start_ns": cmd.start_ns,
+                          "operator": cmd.operator, "url": self.link.url,
+                          "geometry": vars(self.geometry), "pose_source_at_start": "track" if fresh else "odometry",
+                          "commanded_path": np.round(mission.path(0.02), 4).tolist()})
+            log.info("robot %s: mission %s started (%s, %.2f m/s)", self.name, mission_id, cmd.control, speed)
+            return {"mission_id": mission_id, "speed_mps": speed, "length_m": round(mission.length_m, 4),
+                    "phases": len(mission.segments), "start_pose": [round(v, 4) for v in start]}
+
+    def _check_inside(self, mission) -> None:
+        m = self.opt.geofence_margin_m
+        sx, sy = self.opt.arena_size_m
+        x0, y0, x1, y1 = mission.bounds()
+        if x0 < m or y0 < m or x1 > sx - m or y1 > sy - m:
+            raise CommandError(f"bad parameter: the {mission.pattern} from ({mission.start[0]:.2f}, "
+                               f"{mission.start[1]:.2f}) spans x {x0:.2f}..{x1:.2f} y {y0:.2f}..{y1:.2f} m and "
+                               f"leaves the arena (0..{sx}, 0..{sy} m, margin {m} m)")
+
+    def stop(self, reason: str = "stopped by command") -> dict:
+        """Stop the mission (if any) and the motors."""
+        with self.lock:
+            had = self.mission_id
+            self._end_mission(reason)
+        self._stop_motors()
+        return {"stopped_mission": had}
+
+    def emergency_stop(self) -> dict:
+        """Stop now and latch: no mission starts until :meth:`clear`."""
+        with self.lock:
+            self.estop = True
+            had = self.mission_id
+            self._end_mission("e-stop")
+        sent = self._stop_motors(self.opt.estop_repeats)
+        return {"stopped_mission": had, "latched": True, "stop_sent": sent}
+
+    def clear(self) -> dict:
+        with self.lock:
+            was = self.estop
+            self.estop = False
+        return {"was_latched": was}
+
+    def set_led(self, rgb) -> dict:
+        try:
+            msg = P.SetLed(*rgb)
+            msg.pack()
+        except (TypeError, P.ProtocolError) as exc:
+            raise CommandError(f"bad parameter: led needs rgb [r, g, b] 0-255: {exc}") from None
+        try:
+            self.link.send(msg)
+        except LinkDown as exc:
+            raise CommandError(str(exc)) from None
+        return {"rgb": list(rgb)}
+
+    # ------------------------------------------------------------------ internals
+    def _stop_motors(self, repeat: int = 1) -> bool:
+        try:
+            self.link.stop_motors(repeat)
+            return True
+        except LinkDown:
+            return False   # the robot's own watchdog stops it within 300 ms
+
+    def _end_mission(self, status: str, results: dict | None = None) -> None:
+        """Close the running mission (lock held)."""
+        if self.runner is None:
+            return
+        res = dict(results or {})
+        cmd_path = self.runner.mission.path()
+        for key, trace in (("path_error_odometry", self._trace_odo), ("path_error_tracks", self._trace_track)):
+            if len(trace) >= 2:
+                res[key] = path_error(np.array(trace), cmd_path).as_dict()
+        res["link"] = self.link.stats.as_dict()
+        if self.mission_log is not None:
+            self.mission_log.event(time.time_ns(), status.split(":")[0].replace(" ", "_"), self.runner.phase)
+            self.mission_log.close(status, **res)
+        self.last_result = {"mission_id": self.mission_id, "status": status, **res}
+        if status != "finished":
+            log.warning("robot %s: mission %s ended: %s", self.name, self.mission_id, status)
+        else:
+            log.info("robot %s: mission %s finished", self.name, self.mission_id)
+        self.runner = None
+        self.mission_log = None
+        self.mission_id = None
+
+    def _on_link_state(self, connected: bool, reason: str) -> None:
+        if connected:
+            return
+        with self.lock:
+            if self.mission_log is not None:
+                self.mission_log.event(time.time_ns(), "link_down", self.runner.phase if self.runner else "")
+            self._end_mission(f"aborted: link down ({reason})")
+
+    def on_track(self, track: Track, now_ns: int) -> None:
+        """A track of this robot: feed pose fusion, record the trace, check the geofence."""
+        if track.edge_publish_ns and track.window_end_us is not None:
+            t_pose = track.edge_publish_ns / 1e9 - (track.window_end_us - track.stamp_us) / 1e6
+        else:
+            t_pose = now_ns / 1e9 - self.opt.track_latency_s
+        with self.lock:
+            self.estimator.add_track(t_pose, track.x, track.y, track.yaw)
+            if self.runner is None:
+                return
+            self._trace_track.append((track.x, track.y))
+            m = self.opt.geofence_margin_m
+            sx, sy = self.opt.arena_size_m
+            if not (m <= track.x <= sx - m and m <= track.y <= sy - m):
+                self.on_error(f"robot {self.name} at ({track.x:.3f}, {track.y:.3f}) m left the geofence: stopped")
+                self._end_mission(f"aborted: geofence ({track.x:.3f}, {track.y:.3f}) m")
+                self._stop_motors(self.opt.estop_repeats)
+
+    def _on_frame(self, fr: P.Frame, now_ns: int, gap: int) -> None:
+        if not isinstance(fr.msg, P.Telemetry):
+            return
+        tel = fr.msg
+        with self.lock:
+            seq = self._seq(fr.seq)
+            t_us = self._clock(fr.time_us)
+            if self._prev is not None and t_us > self._prev[0]:
+                dt = (t_us - self._prev[0]) / 1e6
+                mpc = self.geometry.m_per_count
+                self._speeds = ((tel.enc_left - self._prev[1]) * mpc / dt, (tel.enc_right - self._prev[2]) * mpc / dt)
+            self._prev = (t_us, tel.enc_left, tel.enc_right)
+            self.battery_mv = tel.battery_mv
+            if gap and self.mission_log is not None:
+                self.mission_log.gap(now_ns, (fr.seq - gap) & 0xFFFF, gap, self.runner.phase if self.runner else "")
+            phase = None
+            if self.runner is not None:
+                phase = self._control(tel, now_ns, t_us)
+            else:
+                self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(tel.enc_left, tel.enc_right))
+            if self.mission_log is not None:
+                self.mission_log.sample(Sample(now_ns, t_us, seq, tel.enc_left, tel.enc_right, *self._speeds,
+                                               tel.accel_si, tel.gyro_si, tel.mag_si, tel.battery_mv,
+                                               tel.motor_left, tel.motor_right, phase or ""))
+            self.samples += 1
+            mission = self.mission_id
+        if self.publish is not None:
+            msg = Telemetry(robot=self.name, seq=seq, robot_time_us=t_us, host_time_ns=now_ns,
+                            enc_left=tel.enc_left, enc_right=tel.enc_right,
+                            speed_left=float(np.clip(self._speeds[0], -100, 100)),
+                            speed_right=float(np.clip(self._speeds[1], -100, 100)),
+                            accel=tel.accel_si, gyro=tel.gyro_si, mag=tel.mag_si, battery_mv=tel.battery_mv,
+                            power_left=tel.motor_left, power_right=tel.motor_right, mission=mission, phase=phase)
+            self.publish(self.name, msg)
+            self.published += 1
+
+    def _control(self, tel: P.Telemetry, now_ns: int, t_us: int) -> str:
+        """One control step of the running mission (lock held); returns the phase."""
+        runner = self.runner
+        if self.start_at_ns is not None and now_ns < self.start_at_ns:
+            self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(tel.enc_left, tel.enc_right))
+            return "waiting"
+        if self.estop:
+            self._end_mission("e-stop")
+            return "e-stop"
+        if 0 < tel.battery_mv < self.opt.low_battery_mv:
+            self.on_error(f"robot {self.name}: battery {tel.battery_mv} mV < {self.opt.low_battery_mv} mV: mission stopped")
+            self._end_mission(f"aborted: low battery ({tel.battery_mv} mV)")
+            self._stop_motors()
+            return "low battery"
+        try:
+            out = runner.update(now_ns / 1e9, tel.enc_left, tel.enc_right, t_robot=t_us / 1e6)
+        except Exception as exc:  # noqa: BLE001 - a mission bug must stop the robot, not the bridge
+            log.exception("robot %s: mission crashed", self.name)
+            self._end_mission(f"failed: mission crashed: {exc!r}")
+            self._stop_motors(self.opt.estop_repeats)
+            return "crashed"
+        self._trace_odo.append(self.odometry.pose[:2])
+        if out.done:
+            self._end_mission("finished")
+            self._stop_motors()
+            return "done"
+        try:
+            self.link.set_motors(out.left, out.right)
+        except LinkDown:
+            pass  # the link-state callback ends the mission
+        return out.phase
+
+
+def _router_lost(session: zenoh.Session) -> bool:
+    try:
+        return len(list(session.info.routers_zid())) == 0
+    except Exception:  # noqa: BLE001 - a closing session
+        return True
+
+
+class Bridge:
+    """The Zenoh side: publishers, command queryables, track subscriber, status.
+
+    Args:
+        session: an open Zenoh session.
+        robots: the robots to bridge.
+        options: settings.
+        service: an ``arena.service.Service`` for counters (optional).
+        watch_router: stop every robot when the session has no router (client mode).
+    """
+
+    def __init__(self, session: zenoh.Session, robots: list[RobotSetup], options: BridgeOptions | None = None,
+                 service=None, watch_router: bool = False):
+        if not robots:
+            raise ValueError("no robots to bridge: give --robot NAME=URL or a lab config with serial_url")
+        self.session = session
+        self.opt = options or BridgeOptions()
+        self.svc = service
+        self.watch_router = watch_router
+        self.handles: dict[str, RobotHandle] = {}
+        self._pubs = {}
+        for r in robots:
+            validate_name(r.name, "robot name")
+            if r.name in self.handles or r.name == "all":
+                raise ValueError(f"robot name {r.name!r} used twice or reserved")
+            self.handles[r.name] = RobotHandle(r, self.opt, publish=self._publish, on_error=self._error)
+            self._pubs[r.name] = session.declare_publisher(telemetry_key(r.name))
+        self._decls = []
+        self._stop = threading.Event()
+        self._monitor: threading.Thread | None = None
+
+    def _error(self, msg: str) -> None:
+        if self.svc is not None:
+            self.svc.error(msg)
+        else:
+            log.warning("%s", msg)
+
+    def _publish(self, robot: str, msg: Telemetry) -> None:
+        try:
+            self._pubs[robot].put(msg.encode())
+        except Exception as exc:  # noqa: BLE001 - a closing session must not kill the link thread
+            self._error(f"publish telemetry of {robot} failed: {exc}")
+            return
+        if self.svc is not None:
+            self.svc.count("telemetry_out")
+
+    def start(self) -> "Bridge":
+        for h in self.handles.values():
+            h.start()
+        for name in list(self.handles) + ["all"]:
+            self._decls.append(self.session.declare_queryable(f"arena/cmd/{name}/*", self._on_query))
+        self._decls.append(self.session.declare_subscriber(ALL_ROBOTS, self._on_track))
+        self._monitor = threading.Thread(target=self._watch, name="bridge-monitor", daemon=True)
+        self._monitor.start()
+        return self
+
+    def close(self) -> None:
+        """Stop every robot, close logs, links and Zenoh declarations."""
+        self._stop.set()
+        for h in self.handles.values():
+            h.close()
+        for d in self._decls:
+            try:
+                d.undeclare()
+            except Exception:  # noqa: BLE001
+                pass
+        self._decls.clear()
+        if self._monitor is not None:
+            self._monitor.join(timeout=2.0)
+
+    def __enter__(self) -> "Bridge":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _watch(self) -> None:
+        """Once every 0.25 s: status gauges; stop all robots if the router is gone."""
+        lost_since = None
+        while not self._stop.wait(0.25):
+            if self.watch_router:
+                if _router_lost(self.session):
+                    lost_since = lost_since or time.monotonic()
+                    if time.monotonic() - lost_since > 0.5:
+                        for h in self.handles.values():
+                            if h.runner is not None:
+                                self._error(f"Zenoh router lost: stopping {h.name}")
+                                h.stop("aborted: Zenoh router lost")
+                else:
+                    lost_since = None
+            if self.svc is not None:
+                for name, h in self.handles.items():
+                    st = h.link.stats
+                    self.svc.gauge(f"{name}.link", "up" if h.link.connected else f"down: {h.link.last_error}")
+                    self.svc.gauge(f"{name}.rtt_ms", round(st.rtt_ms, 2) if st.rtt_ms is not None else -1)
+                    self.svc.gauge(f"{name}.quality", round(st.quality, 4))
+                    self.svc.gauge(f"{name}.crc_errors", st.crc_errors)
+                    self.svc.gauge(f"{name}.missing", st.missing)
+                    self.svc.gauge(f"{name}.phase", h.runner.phase if h.runner else ("e-stop" if h.estop else "idle"))
+                    self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
+
+    def _on_track(self, sample) -> None:
+        now = time.time_ns()
+        try:
+            track = decode(sample.payload.to_bytes())
+        except MessageError as exc:
+            self._error(f"bad track on {sample.key_expr}: {exc}")
+            return
+        if not isinstance(track, Track) or track.robot is None:
+            return
+        h = self.handles.get(track.robot)
+        if h is not None:
+            h.on_track(track, now)
+
+    def _on_query(self, query) -> None:
+        parts = str(query.key_expr).split("/")
+        robot, verb = parts[2], parts[3]
+        targets = list(self.handles) if robot == "all" else [robot]
+        for name in targets:
+            reply = self.execute(name, verb, query.payload.to_bytes() if query.payload is not None else b"")
+            try:
+                query.reply(f"arena/cmd/{name}/{verb}", reply.encode())
+            except Exception as exc:  # noqa: BLE001 - the querier may have gone
+                self._error(f"reply to {verb} for {name} failed: {exc}")
+
+    def execute(self, robot: str, verb: str, payload: bytes) -> CommandReply:
+        """Carry out one command for one robot and build the reply (never raises)."""
+        h = self.handles.get(robot)
+        if h is None:
+            return CommandReply(ok=False, robot=robot, verb=verb,
+                                error=f"unknown robot {robot!r}; this bridge has {', '.join(self.handles)}")
+        if verb not in COMMAND_VERBS:
+            return CommandReply(ok=False, robot=robot, verb=verb,
+                                error=f"bad parameter: unknown verb {verb!r}; expected {', '.join(COMMAND_VERBS)}")
+        try:
+            if verb == "mission":
+                try:
+                    cmd = MissionCommand.decode(payload)
+                except MessageError as exc:
+                    raise CommandError(f"bad parameter: {exc}") from None
+                detail = h.start_mission(cmd)
+            else:
+                params: dict = {}
+                if payload:
+                    try:
+                        params = Command.decode(payload).params
+                    except MessageError as exc:
+                        raise CommandError(f"bad parameter: {exc}") from None
+                if verb == "stop":
+                    detail = h.stop()
+                elif verb == "estop":
+                    detail = h.emergency_stop()
+                elif verb == "clear":
+                    detail = h.clear()
+                else:
+                    detail = h.set_led(params.get("rgb"))
+        except CommandError as exc:
+            if self.svc is not None:
+                self.svc.count("commands_refused")
+            return CommandReply(ok=False, robot=robot, verb=verb, error=str(exc))
+        if self.svc is not None:
+            self.svc.count("commands_ok")
+        return CommandReply(ok=True, robot=robot, verb=verb, detail=detail)
+
+
+def parse_robot_flag(value: str) -> tuple[str, str]:
+    """``NAME=URL`` -> (name, url); raises ValueError with the expected form."""
+    name, sep, url = value.partition("=")
+    if not sep or not name or not url:
+        raise ValueError(f"--robot expects NAME=URL (e.g. zumo1=/dev/rfcomm0 or zumo1=socket://127.0.0.1:5001), "
+                         f"got {value!r}")
+    validate_name(name, "robot name")
+    return name, url
+
+
+def fmt_reply(reply: CommandReply) -> str:
+    """One human line for a reply (cm and degrees allowed in CLI output)."""
+    if reply.ok:
+        extra = " ".join(f"{k}={v}" for k, v in reply.detail.items())
+        return f"{reply.robot}: {reply.verb} ok {extra}".rstrip()
+    return f"{reply.robot}: {reply.verb} REFUSED: {reply.error}"
