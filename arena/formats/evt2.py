@@ -139,6 +139,11 @@ class _WordDecoder:
         return int(self._state[3])
 
     @property
+    def time_us(self) -> int | None:
+        """Latest sensor time known from TIME_HIGH words (µs, 64 µs resolution)."""
+        return int(self._state[1] + (self._state[0] << 6)) if self._state[2] else None
+
+    @property
     def pending_bytes(self) -> int:
         """Bytes of an incomplete word kept for the next :meth:`feed`."""
         return len(self._rest)

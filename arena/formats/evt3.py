@@ -130,6 +130,12 @@ class Evt3Decoder:
         return int(self._state[_SKIPPED])
 
     @property
+    def time_us(self) -> int | None:
+        """Latest sensor time seen in the stream (µs), also from time words without events."""
+        st = self._state
+        return int(st[_OFF] + ((st[_TH] << 12) | st[_TL])) if st[_HAVE_T] else None
+
+    @property
     def pending_bytes(self) -> int:
         """Bytes of an incomplete word kept for the next :meth:`feed`."""
         return len(self._rest)

@@ -1,0 +1,209 @@
+"""``arena edge`` and ``arena convert`` command lines."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+
+from arena.codec import CODECS, DEFAULT_CODEC
+
+log = logging.getLogger("camera_edge")
+
+EDGE_EXAMPLES = """\
+Examples:
+  arena edge tcp://127.0.0.1:9000 --camera cam0            # simulator / raw EVT 3.0 stream
+  arena edge rec.raw --camera cam0 --speed 1 --loop          # replay a recording in real time
+  arena edge prophesee: --camera cam0 --denoise --hot-pixels learn
+  arena edge inivation: --camera cam0 --roi calib.json --roi-margin 10
+  arena edge --lab lab.toml --camera cam0                    # source, size, ROI from the lab config
+  arena edge --list-devices                                  # attached event cameras (USB)
+Status: arena status (events/s in, filtered, bytes/s out, encode time, drops)."""
+
+CONVERT_EXAMPLES = """\
+Examples:
+  arena convert rec.raw rec.aedat4                 # EVT 3.0 RAW -> AEDAT4 (LZ4)
+  arena convert rec.aedat4 rec.raw --evt 2         # -> Prophesee RAW, EVT 2.0
+  arena convert paper.csv rec.raw --size 1280x720  # CSV carries no sensor size
+  arena convert rec.dat rec.npz
+Formats by extension: read .raw (EVT 2.0/2.1/3.0) .dat .aedat4 .csv .npy .npz;
+write .raw (EVT 3.0 or 2.0) .dat .aedat4 .csv .npz .npy."""
+
+
+def _fmt(prog: str) -> argparse.HelpFormatter:
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+        return w, h
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT in px, e.g. 1280x720; got {text!r}") from None
+
+
+def register_convert(sub) -> None:
+    """Add ``arena convert``."""
+    p = sub.add_parser("convert", help="convert event recordings between formats", formatter_class=_fmt,
+                       description="Convert an event recording to another format, chosen by extension,\n"
+                                   "keeping the sensor size and absolute timestamps.", epilog=CONVERT_EXAMPLES)
+    p.add_argument("input", help="input file (.raw .dat .aedat4 .csv .npy .npz)")
+    p.add_argument("output", help="output file (.raw .dat .aedat4 .csv .npz .npy)")
+    p.add_argument("--evt", type=int, choices=(3, 2), default=3, help="EVT version of a .raw output (default 3)")
+    p.add_argument("--compression", default="lz4", choices=("lz4", "lz4high", "zstd", "zstdhigh", "none"),
+                   help="packet compression of an .aedat4 output (default lz4)")
+    p.add_argument("--size", type=_size, default=None, metavar="WxH",
+                   help="sensor size in px (for CSV/npy inputs, which do not carry it)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (shown for inputs > 64 MB)")
+    p.set_defaults(func=run_convert)
+
+
+def run_convert(args) -> int:
+    from arena.formats import FormatError
+    from camera_edge.convert import convert
+
+    w, h = args.size or (None, None)
+    big = os.path.isfile(args.input) and os.path.getsize(args.input) > 64 << 20
+    try:
+        res = convert(args.input, args.output, evt=args.evt, compression=args.compression, width=w, height=h,
+                      progress=big and not args.no_progress)
+    except (FormatError, OSError) as exc:
+        print(f"arena convert: {exc}", file=sys.stderr)
+        return 2
+    extra = f", {res['invalid']} invalid events skipped" if res["invalid"] else ""
+    print(f"{args.output}: {res['events']} events, {res['width']} x {res['height']} px{extra}")
+    return 0
+
+
+def register_edge(sub) -> None:
+    """Add ``arena edge``."""
+    from arena.session import add_zenoh_arguments
+
+    p = sub.add_parser("edge", help="read an event camera, filter, slice, compress and publish",
+                       formatter_class=_fmt, epilog=EDGE_EXAMPLES,
+                       description="Read events from a camera, a TCP stream or a file, filter them, cut\n"
+                                   "fixed slices of sensor time and publish them compressed on\n"
+                                   "arena/events/<camera> (congestion control DROP).")
+    p.add_argument("source", nargs="?", help="tcp://HOST:PORT, prophesee:[SERIAL], inivation:[NAME] or a file "
+                   "(.raw .dat .aedat4 .csv .npy .npz); default: the camera's source in the lab config")
+    p.add_argument("--camera", default=None, help="camera name (key arena/events/<camera>; default cam0 or the "
+                   "lab config's first camera)")
+    p.add_argument("--list-devices", action="store_true", help="list attached event cameras and exit")
+    p.add_argument("--slice-ms", type=float, default=10.0, help="slice duration in ms of sensor time (default 10)")
+    p.add_argument("--codec", choices=CODECS, default=DEFAULT_CODEC,
+                   help=f"window codec (default {DEFAULT_CODEC}, lossless; planes-zstd-ms/1 floors times to 1 ms)")
+    p.add_argument("--speed", type=float, default=1.0, help="file replay speed: 1 real time, 0 as fast as possible")
+    p.add_argument("--loop", action="store_true", help="replay a file forever (times keep increasing)")
+    f = p.add_argument_group("filters (each optional, in this order)")
+    f.add_argument("--hot-pixels", metavar="learn|FILE", default=None,
+                   help="drop hot pixels: learned over --hot-learn-s, or listed in FILE (x,y lines or .npy)")
+    f.add_argument("--hot-learn-s", type=float, default=2.0, help="learning time of hot pixels, s (default 2)")
+    f.add_argument("--roi", metavar="lab|CALIB_JSON", default=None,
+                   help="keep events inside the arena: the hull of the calibration points (lab: the lab camera's)")
+    f.add_argument("--roi-margin", type=int, default=10, help="grow the region of interest by PX (default 10)")
+    f.add_argument("--denoise", nargs="?", const=10_000, type=int, default=None, metavar="DT_US",
+                   help="background-activity filter: keep events with a neighbour within DT_US µs (default 10000)")
+    p.add_argument("--queue", type=int, default=32, help="windows queued before the oldest is dropped (default 32)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    add_zenoh_arguments(p)
+    p.set_defaults(func=run_edge_cli)
+
+
+def _build_filters(args, width: int, height: int, lab_camera) -> list:
+    from camera_edge.filters import BackgroundActivityFilter, HotPixelFilter, RoiFilter
+
+    filters = []
+    if args.hot_pixels:
+        if args.hot_pixels == "learn":
+            filters.append(HotPixelFilter(width, height, learn_us=int(args.hot_learn_s * 1e6)))
+        else:
+            filters.append(HotPixelFilter(width, height, path=args.hot_pixels))
+    if args.roi:
+        if args.roi == "lab":
+            if lab_camera is None or not lab_camera.calibration:
+                raise SystemExit("arena edge: --roi lab needs --lab with a calibration for this camera")
+            calib = lab_camera.calibration
+        else:
+            try:
+                with open(args.roi) as fh:
+                    calib = json.load(fh)
+            except (OSError, ValueError) as exc:
+                raise SystemExit(f"arena edge: cannot read calibration {args.roi}: {exc}") from None
+        try:
+            filters.append(RoiFilter.from_calibration(calib, margin_px=args.roi_margin))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise SystemExit(f"arena edge: {args.roi} is not a usable calibration: {exc}") from None
+        if filters[-1].mask_.shape != (height, width):
+            raise SystemExit(f"arena edge: calibration image size {filters[-1].mask_.shape[::-1]} differs "
+                             f"from the sensor's {width} x {height}")
+    if args.denoise is not None:
+        filters.append(BackgroundActivityFilter(width, height, dt_us=args.denoise))
+    return filters
+
+
+def run_edge_cli(args) -> int:
+    from arena.config import ConfigError
+    from arena.keys import InvalidKey, validate_name
+    from arena.service import stop_on_signals
+    from arena.session import load_lab_from_args, open_session
+    from camera_edge.devices import list_devices
+    from camera_edge.pipeline import EdgePipeline
+    from camera_edge.service import run_edge
+    from camera_edge.sources import SourceError, open_source
+
+    if args.list_devices:
+        try:
+            devices = list_devices()
+        except RuntimeError as exc:
+            print(f"arena edge: {exc}", file=sys.stderr)
+            return 2
+        for d in devices:
+            print(d.describe())
+        if not devices:
+            print("no event camera found on USB (Prophesee 31f7/04b4, iniVation 152a)")
+        return 0
+    try:
+        lab = load_lab_from_args(args)
+    except ConfigError as exc:
+        print(f"arena edge: {exc}", file=sys.stderr)
+        return 2
+    cam = None
+    if lab is not None and lab.cameras:
+        try:
+            cam = lab.camera(args.camera)
+        except ConfigError as exc:
+            print(f"arena edge: {exc}", file=sys.stderr)
+            return 2
+    name = args.camera or (cam.name if cam else "cam0")
+    try:
+        validate_name(name, "camera name")
+    except InvalidKey as exc:
+        print(f"arena edge: {exc}", file=sys.stderr)
+        return 2
+    source_url = args.source or (cam.source if cam else None)
+    if not source_url:
+        print("arena edge: give a SOURCE (or --lab with a camera source); see --help", file=sys.stderr)
+        return 2
+    if args.slice_ms <= 0 or args.speed < 0 or args.queue < 1:
+        print("arena edge: --slice-ms must be > 0, --speed >= 0, --queue >= 1", file=sys.stderr)
+        return 2
+    try:
+        source = open_source(source_url, speed=args.speed, **({"loop": True} if args.loop else {}))
+    except (SourceError, TypeError) as exc:
+        print(f"arena edge: {exc}", file=sys.stderr)
+        return 2
+    stop = stop_on_signals()
+    with source:
+        filters = _build_filters(args, source.width, source.height, cam)
+        pipeline = EdgePipeline(filters, slice_us=int(round(args.slice_ms * 1000)))
+        with open_session(args, lab=lab) as session:
+            res = run_edge(session, source, pipeline, name, args.codec, queue_size=args.queue,
+                           duration_s=args.duration, stop=stop)
+    log.info("edge %s done: %s", name, res)
+    print(f"arena edge {name}: {res['events_in']} events in, {res['events_kept']} kept, "
+          f"{res['windows']} windows, {res['windows_dropped']} dropped", file=sys.stderr)
+    return 0

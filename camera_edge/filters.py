@@ -1,0 +1,192 @@
+"""Edge event filters: pure, stateful where they must be, each counting events in and out.
+
+* :class:`HotPixelFilter` removes pixels that fire far more than the rest (learned from the
+  first ``learn_us`` of the stream, or loaded from a file of hot pixel coordinates).
+* :class:`BackgroundActivityFilter` keeps an event only if a neighbouring pixel fired within
+  ``dt_us`` before it (the classic nearest-neighbour timestamp filter, Delbruck 2008).
+* :class:`RoiFilter` keeps events inside a polygon of the sensor (e.g. the arena outline from
+  the calibration), rasterised once into a mask.
+
+All take and return :data:`arena.events.EVENT_DTYPE` arrays (sensor px, µs) in time order.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numba import njit
+
+
+class EventFilter:
+    """Base: ``__call__(events) -> kept events``; ``n_in``/``n_out`` count events."""
+
+    name = "filter"
+
+    def __init__(self) -> None:
+        self.n_in = 0
+        self.n_out = 0
+
+    def __call__(self, events: np.ndarray) -> np.ndarray:
+        self.n_in += events.size
+        out = self._apply(events)
+        self.n_out += out.size
+        return out
+
+    def _apply(self, events: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class HotPixelFilter(EventFilter):
+    """Remove hot pixels.
+
+    Learning: during the first ``learn_us`` µs of sensor time events pass unchanged while
+    per-pixel counts accumulate; then a pixel is hot if its rate exceeds ``min_rate_hz`` and
+    ``factor`` times the mean rate of active pixels. Or give ``hot_pixels`` (k, 2) (x, y)
+    or a ``path`` saved by :meth:`save` (``.npy`` or text ``x,y`` lines).
+    """
+
+    name = "hot_pixel"
+
+    def __init__(self, width: int, height: int, learn_us: int = 2_000_000, factor: float = 50.0,
+                 min_rate_hz: float = 20.0, hot_pixels: np.ndarray | None = None,
+                 path: str | Path | None = None) -> None:
+        super().__init__()
+        self.width, self.height = width, height
+        self.learn_us, self.factor, self.min_rate_hz = learn_us, factor, min_rate_hz
+        self.mask_ = np.zeros((height, width), bool)
+        self._counts: np.ndarray | None = np.zeros(height * width, np.int64)
+        self._t0: int | None = None
+        if path is not None:
+            hot_pixels = self.load(path)
+        if hot_pixels is not None:
+            self._set(np.asarray(hot_pixels, np.int64).reshape(-1, 2))
+
+    @staticmethod
+    def load(path: str | Path) -> np.ndarray:
+        """Hot pixel coordinates (k, 2) (x, y) from ``.npy`` or a text file of ``x,y`` lines."""
+        path = Path(path)
+        try:
+            if path.suffix == ".npy":
+                return np.load(path).astype(np.int64).reshape(-1, 2)
+            return np.loadtxt(path, delimiter=",", dtype=np.int64, ndmin=2).reshape(-1, 2)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: not a hot pixel list (x,y per line, or .npy (k, 2)): {exc}") from None
+
+    def save(self, path: str | Path) -> None:
+        """Save the hot pixels as ``x,y`` text lines (or ``.npy``)."""
+        pts = self.hot_pixels_
+        if Path(path).suffix == ".npy":
+            np.save(path, pts)
+        else:
+            np.savetxt(path, pts, fmt="%d", delimiter=",")
+
+    @property
+    def hot_pixels_(self) -> np.ndarray:
+        """Hot pixels (k, 2) as (x, y) px."""
+        ys, xs = np.nonzero(self.mask_)
+        return np.column_stack([xs, ys]).astype(np.int64)
+
+    @property
+    def learning(self) -> bool:
+        """Whether the filter is still learning (passes everything)."""
+        return self._counts is not None
+
+    def _set(self, pts: np.ndarray) -> None:
+        ok = (pts[:, 0] >= 0) & (pts[:, 0] < self.width) & (pts[:, 1] >= 0) & (pts[:, 1] < self.height)
+        self.mask_[:] = False
+        self.mask_[pts[ok, 1], pts[ok, 0]] = True
+        self._counts = None
+
+    def _apply(self, events: np.ndarray) -> np.ndarray:
+        if self._counts is not None:
+            if events.size == 0:
+                return events
+            if self._t0 is None:
+                self._t0 = int(events["t"][0])
+            end = self._t0 + self.learn_us
+            k = int(np.searchsorted(events["t"], end))
+            addr = events["y"][:k].astype(np.int64) * self.width + events["x"][:k]
+            self._counts += np.bincount(addr, minlength=self._counts.size)
+            if k == events.size:
+                return events
+            rate = self._counts / (self.learn_us / 1e6)
+            active = rate[rate > 0]
+            thr = max(self.min_rate_hz, self.factor * (active.mean() if active.size else 0.0))
+            hot = np.flatnonzero(rate > thr)
+            self._set(np.column_stack([hot % self.width, hot // self.width]))
+            return np.concatenate([events[:k], events[k:][~self.mask_[events["y"][k:], events["x"][k:]]]])
+        return events[~self.mask_[events["y"], events["x"]]]
+
+
+@njit(cache=True, nogil=True)
+def _ba_filter(xs, ys, ts, last, dt_us, keep):
+    h, w = last.shape
+    n = 0
+    for i in range(xs.size):
+        x = np.int64(xs[i])
+        y = np.int64(ys[i])
+        t = ts[i]
+        k = t - last[y, x] <= dt_us
+        keep[i] = k
+        n += k
+        # tell the 8 neighbours (not the pixel itself) that something fired next to them
+        for yy in range(max(y - 1, 0), min(y + 2, h)):
+            for xx in range(max(x - 1, 0), min(x + 2, w)):
+                if yy != y or xx != x:
+                    last[yy, xx] = t
+    return n
+
+
+class BackgroundActivityFilter(EventFilter):
+    """Nearest-neighbour timestamp filter: keep an event if one of its 8 neighbours fired
+    within ``dt_us`` µs before it. Removes isolated background activity; moving edges,
+    whose neighbours fire together, pass. Memory: one int64 per pixel."""
+
+    name = "background"
+
+    def __init__(self, width: int, height: int, dt_us: int = 5000) -> None:
+        super().__init__()
+        if dt_us <= 0:
+            raise ValueError(f"dt_us must be > 0, got {dt_us}")
+        self.dt_us = int(dt_us)
+        self._last = np.full((height, width), -(1 << 62), np.int64)
+
+    def _apply(self, events: np.ndarray) -> np.ndarray:
+        keep = np.empty(events.size, np.bool_)
+        _ba_filter(events["x"], events["y"], events["t"], self._last, self.dt_us, keep)
+        return events[keep]
+
+
+class RoiFilter(EventFilter):
+    """Keep events inside ``polygon`` ((k, 2) sensor px, u right, v down), optionally grown by
+    ``margin_px``. The polygon is rasterised once with OpenCV."""
+
+    name = "roi"
+
+    def __init__(self, width: int, height: int, polygon, margin_px: int = 0) -> None:
+        super().__init__()
+        pts = np.asarray(polygon, dtype=np.float64).reshape(-1, 2)
+        if pts.shape[0] < 3:
+            raise ValueError(f"a region of interest needs at least 3 corners, got {pts.shape[0]}")
+        mask = np.zeros((height, width), np.uint8)
+        cv2.fillPoly(mask, [np.round(pts).astype(np.int32)], 1)
+        if margin_px > 0:
+            k = 2 * int(margin_px) + 1
+            mask = cv2.dilate(mask, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+        self.mask_ = mask.astype(bool)
+
+    @classmethod
+    def from_calibration(cls, calibration: dict, margin_px: int = 0) -> "RoiFilter":
+        """ROI = convex hull of the calibration points' pixels (``{"image_size": [w, h],
+        "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}``)."""
+        w, h = calibration["image_size"]
+        px = np.array([p["pixel"] for p in calibration["points"]], np.float32)
+        if px.shape[0] < 3:
+            raise ValueError("the calibration needs at least 3 points to make a region of interest")
+        hull = cv2.convexHull(px).reshape(-1, 2)
+        return cls(int(w), int(h), hull, margin_px)
+
+    def _apply(self, events: np.ndarray) -> np.ndarray:
+        return events[self.mask_[events["y"], events["x"]]]

@@ -1,0 +1,172 @@
+"""The edge service: read a source, filter, slice, encode and publish event windows on Zenoh.
+
+Threads: the main thread reads the source and runs :class:`~camera_edge.pipeline.EdgePipeline`;
+a publisher thread encodes and puts windows. Between them a bounded queue: for a live source
+a full queue drops the oldest window (counted in ``windows_dropped`` and in every message's
+``dropped``), so the camera is never stalled; for a file the reader waits instead. The Zenoh
+publisher uses congestion control DROP, and encoding is skipped while nobody subscribes
+(publisher matching status).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import threading
+import time
+
+import zenoh
+
+from arena.codec import encode
+from arena.keys import events_key
+from arena.messages import EventWindow
+from arena.service import Service
+from camera_edge.pipeline import EdgePipeline, Window
+from camera_edge.sources import EventSource, FileSource
+
+log = logging.getLogger("camera_edge.service")
+
+
+class WindowPublisher:
+    """Encodes and publishes windows from a bounded queue on its own thread."""
+
+    def __init__(self, session: zenoh.Session, camera: str, width: int, height: int, svc: Service,
+                 codec: str, queue_size: int = 32) -> None:
+        self.camera, self.width, self.height, self.svc, self.codec = camera, width, height, svc, codec
+        self._pub = session.declare_publisher(events_key(camera), congestion_control=zenoh.CongestionControl.DROP,
+                                              express=True)
+        self._matching = bool(self._pub.matching_status.matching)
+        self._listener = self._pub.declare_matching_listener(self._on_matching)
+        self._q: collections.deque[Window] = collections.deque()
+        self._size = queue_size
+        self._cv = threading.Condition()
+        self._closing = False
+        self.seq = 0
+        self.dropped = 0
+        self._thread = threading.Thread(target=self._run, name=f"edge-pub-{camera}", daemon=True)
+        self._thread.start()
+
+    def _on_matching(self, status) -> None:
+        self._matching = bool(status.matching)
+        log.info("%s: %s", self.camera, "a subscriber is listening" if self._matching else "no subscriber")
+
+    @property
+    def matching(self) -> bool:
+        """Whether some subscriber matches the windows' key."""
+        return self._matching
+
+    def submit(self, window: Window, block: bool) -> None:
+        """Queue a window; when full, wait (``block``) or drop the oldest (counted)."""
+        with self._cv:
+            while block and len(self._q) >= self._size and not self._closing:
+                self._cv.wait(0.1)
+            if len(self._q) >= self._size:
+                self._q.popleft()
+                self.dropped += 1
+                self.seq += 1
+                self.svc.count("windows_dropped")
+            self._q.append(window)
+            self._cv.notify_all()
+
+    def depth(self) -> int:
+        return len(self._q)
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._q and not self._closing:
+                    self._cv.wait(0.1)
+                if not self._q:
+                    return
+                w = self._q.popleft()
+                seq = self.seq
+                self.seq += 1
+                self._cv.notify_all()
+            try:
+                self._publish(w, seq)
+            except Exception as exc:  # noqa: BLE001 - keep publishing the next windows
+                self.svc.error(f"window {seq}: {exc}")
+
+    def _publish(self, w: Window, seq: int) -> None:
+        self.svc.count("windows")
+        if not self._matching:
+            self.svc.count("windows_unsubscribed")
+            return
+        t0 = time.perf_counter()
+        data = encode(w.events, self.codec, t_ref_us=w.t_start_us)
+        msg = EventWindow(camera=self.camera, seq=seq, t_start_us=w.t_start_us, t_end_us=w.t_end_us,
+                          width=self.width, height=self.height, count=int(w.events.size), codec=self.codec,
+                          data=data, dropped=self.dropped, filtered=int(w.filtered), publish_ns=time.time_ns())
+        payload = msg.encode()
+        enc_ms = (time.perf_counter() - t0) * 1e3
+        self._pub.put(payload)
+        self.svc.count("events_out", w.events.size)
+        self.svc.count("bytes_out", len(payload))
+        self.svc.count("encode_ms", enc_ms)
+        self.svc.gauge("encode_ms_last", round(enc_ms, 3))
+        if w.events.size:
+            self.svc.gauge("bytes_per_event", round(len(data) / w.events.size, 3))
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Publish what is queued (up to ``timeout_s``), then stop."""
+        with self._cv:
+            self._closing = True
+            self._cv.notify_all()
+        self._thread.join(timeout_s)
+        for obj in (self._listener, self._pub):
+            try:
+                obj.undeclare()
+            except Exception:  # noqa: BLE001 - session may be closing
+                pass
+
+
+def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline, camera: str, codec: str,
+             queue_size: int = 32, duration_s: float | None = None, stop: threading.Event | None = None) -> dict:
+    """Run the edge until the source ends, ``duration_s`` passes or ``stop`` is set.
+
+    Returns the final counters (events in/out, windows, drops, ...)."""
+    stop = stop or threading.Event()
+    live = not isinstance(source, FileSource)
+    with Service(session, "edge", camera) as svc:
+        pub = WindowPublisher(session, camera, source.width, source.height, svc, codec, queue_size)
+        cpu0, wall0 = time.process_time(), time.monotonic()
+        last = [cpu0, wall0]
+
+        def tick(s: Service) -> None:
+            cpu, wall = time.process_time(), time.monotonic()
+            s.gauge("cpu_percent", round(100 * (cpu - last[0]) / max(wall - last[1], 1e-6), 1))
+            last[0], last[1] = cpu, wall
+            s.gauge("queue_depth", pub.depth())
+            s.gauge("subscribed", int(pub.matching))
+            s.gauge("source_invalid", source.invalid)
+            for f in pipeline.filters:
+                s.gauge(f"filter_{f.name}_in", f.n_in)
+                s.gauge(f"filter_{f.name}_out", f.n_out)
+            for attr in ("reconnects", "connected"):
+                if hasattr(source, attr):
+                    s.gauge(f"source_{attr}", int(getattr(source, attr)))
+
+        svc.on_tick(tick)
+        log.info("edge %s: %s (%d x %d) -> %s, codec %s", camera, source.name, source.width, source.height,
+                 events_key(camera), codec)
+        try:
+            while not stop.is_set():
+                if duration_s is not None and time.monotonic() - wall0 >= duration_s:
+                    break
+                ev = source.read(timeout=0.05)
+                if ev is None:
+                    for w in pipeline.flush():
+                        pub.submit(w, block=True)
+                    break
+                svc.count("events_in", ev.size)
+                kept_before = pipeline.n_out
+                windows = pipeline.push(ev, source.time_us)
+                svc.count("events_filtered", ev.size - (pipeline.n_out - kept_before))
+                for w in windows:
+                    pub.submit(w, block=not live)
+        finally:
+            pub.close()
+            result = {"events_in": pipeline.n_in, "events_kept": pipeline.n_out, "windows": pub.seq,
+                      "windows_dropped": pub.dropped, "cpu_s": time.process_time() - cpu0,
+                      "wall_s": time.monotonic() - wall0}
+    return result
