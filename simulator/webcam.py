@@ -316,7 +316,7 @@ class WebcamModel:
             speed_px = 0.0
             if self.blur:
                 speed_px = (math.hypot(v[0], v[1]) + abs(v[2]) * 0.07) * exposure * self.P[0, 0] / 2.4
-            k = int(min(6, max(1, math.ceil(speed_px / 0.75))))
+            k = int(min(6, max(1, math.ceil(speed_px - 1e-9))))   # one sub-pose per px of travel
             offs = np.linspace(-0.5, 0.5, k) * exposure if k > 1 else np.zeros(1)
             sub = np.array([[pose[0] + v[0] * o, pose[1] + v[1] * o, pose[2] + v[2] * o] for o in offs])
             box = self._robot_bbox(spec, sub)
