@@ -14,7 +14,9 @@ Sessions must always be closed (a Python process with a callback subscriber hang
 otherwise), so :func:`open_session` is a context manager.
 
 Environment: ``ARENA_LAB`` (lab config path), ``ARENA_ZENOH_MODE``, ``ARENA_ZENOH_CONNECT`` and
-``ARENA_ZENOH_LISTEN`` (comma-separated endpoints), ``ARENA_ZENOH_CONFIG`` (JSON5 file).
+``ARENA_ZENOH_LISTEN`` (comma-separated endpoints), ``ARENA_ZENOH_CONFIG`` (JSON5 file),
+``ARENA_ZENOH_USER`` and ``ARENA_ZENOH_PASSWORD`` (user/password authentication; ``arena certs``
+writes them per role, see ``docs/deployment.md``).
 """
 
 from __future__ import annotations
@@ -154,6 +156,8 @@ def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | No
         s.listen = _split(env["ARENA_ZENOH_LISTEN"]) or []
     if env.get("ARENA_ZENOH_CONFIG"):
         s.config_file = env["ARENA_ZENOH_CONFIG"]
+    if env.get("ARENA_ZENOH_USER"):  # per-role credentials (systemd EnvironmentFile, `arena certs`)
+        s.user, s.password = env["ARENA_ZENOH_USER"], env.get("ARENA_ZENOH_PASSWORD", "")
     if args is not None:
         if getattr(args, "mode", None):
             s.mode = args.mode
