@@ -14,7 +14,7 @@ log = logging.getLogger("camera_edge")
 
 EDGE_EXAMPLES = """\
 Examples:
-  arena edge tcp://127.0.0.1:9000 --camera cam0            # simulator / raw EVT 3.0 stream
+  arena edge 'tcp://127.0.0.1:9000?width=640&height=480' --camera cam0   # simulator's camera
   arena edge rec.raw --camera cam0 --speed 1 --loop          # replay a recording in real time
   arena edge prophesee: --camera cam0 --denoise --hot-pixels learn
   arena edge inivation: --camera cam0 --roi calib.json --roi-margin 10
@@ -191,9 +191,17 @@ def run_edge_cli(args) -> int:
     if args.slice_ms <= 0 or args.speed < 0 or args.queue < 1:
         print("arena edge: --slice-ms must be > 0, --speed >= 0, --queue >= 1", file=sys.stderr)
         return 2
+    opts: dict = {}
+    if args.loop:
+        if ":" in source_url.split("/")[0]:
+            print("arena edge: --loop applies to file sources only", file=sys.stderr)
+            return 2
+        opts["loop"] = True
+    if source_url.lower().startswith("tcp://") and cam is not None:
+        opts.update(width=cam.width, height=cam.height)
     try:
-        source = open_source(source_url, speed=args.speed, **({"loop": True} if args.loop else {}))
-    except (SourceError, TypeError) as exc:
+        source = open_source(source_url, speed=args.speed, **opts)
+    except SourceError as exc:
         print(f"arena edge: {exc}", file=sys.stderr)
         return 2
     stop = stop_on_signals()
@@ -205,5 +213,6 @@ def run_edge_cli(args) -> int:
                            duration_s=args.duration, stop=stop)
     log.info("edge %s done: %s", name, res)
     print(f"arena edge {name}: {res['events_in']} events in, {res['events_kept']} kept, "
-          f"{res['windows']} windows, {res['windows_dropped']} dropped", file=sys.stderr)
+          f"{res['windows']} windows, {res['windows_dropped']} dropped in {res['wall_s']:.2f} s "
+          f"(CPU {res['cpu_s']:.2f} s)", file=sys.stderr)
     return 0

@@ -1,4 +1,4 @@
-"""The pure part of the edge: filter, then slice an event stream (no I/O, no clocks)."""
+"""The pure part of the edge: slice an event stream, then filter each slice (no I/O, no clocks)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from camera_edge.slicing import Slicer
 @dataclass
 class Window:
     """A slice ready to publish: events of ``[t_start_us, t_end_us)`` (sensor µs) after the
-    filters, and how many events the filters removed since the previous window."""
+    filters, and how many events of this slice the filters removed."""
 
     t_start_us: int
     t_end_us: int
@@ -22,7 +22,7 @@ class Window:
 
 
 class EdgePipeline:
-    """``push(chunk, time_us) -> windows``: run the filters in order, then cut fixed slices.
+    """``push(chunk, time_us) -> windows``: cut fixed slices, then run the filters in order on each.
 
     ``time_us`` is the source's latest sensor time (µs) so windows close in silent periods.
     """
@@ -32,26 +32,21 @@ class EdgePipeline:
         self.slicer = Slicer(slice_us)
         self.n_in = 0
         self.n_out = 0
-        self._filtered = 0
 
     def _windows(self, slices) -> list[Window]:
         out = []
         for s in slices:
-            out.append(Window(s.t_start_us, s.t_end_us, s.events, self._filtered))
-            self._filtered = 0
+            kept = s.events
+            for f in self.filters:
+                kept = f(kept)
+            self.n_out += kept.size
+            out.append(Window(s.t_start_us, s.t_end_us, kept, s.events.size - kept.size))
         return out
 
     def push(self, events: np.ndarray, time_us: int | None = None) -> list[Window]:
-        """Filter and slice one chunk (time-ordered :data:`EVENT_DTYPE`)."""
+        """Slice and filter one chunk (time-ordered :data:`EVENT_DTYPE`); returns closed windows."""
         self.n_in += events.size
-        kept = events
-        for f in self.filters:
-            if kept.size == 0:
-                break
-            kept = f(kept)
-        self.n_out += kept.size
-        self._filtered += events.size - kept.size
-        slices = self.slicer.push(kept)
+        slices = self.slicer.push(events)
         slices += self.slicer.advance(time_us)
         return self._windows(slices)
 

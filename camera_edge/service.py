@@ -156,13 +156,12 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
                 ev = source.read(timeout=0.05)
                 if ev is None:
                     for w in pipeline.flush():
+                        svc.count("events_filtered", w.filtered)
                         pub.submit(w, block=True)
                     break
                 svc.count("events_in", ev.size)
-                kept_before = pipeline.n_out
-                windows = pipeline.push(ev, source.time_us)
-                svc.count("events_filtered", ev.size - (pipeline.n_out - kept_before))
-                for w in windows:
+                for w in pipeline.push(ev, source.time_us):
+                    svc.count("events_filtered", w.filtered)
                     pub.submit(w, block=not live)
         finally:
             pub.close()

@@ -167,13 +167,15 @@ class TcpSource(EventSource):
 
     The stream may start with a Prophesee RAW text header (``% ...`` lines, ``% end``), which
     gives the EVT version and sensor size; otherwise they come from the URL query
-    (``?evt=3&width=1280&height=720``, defaults EVT 3.0, 1280 x 720). A lost or refused
+    (``?evt=3&width=640&height=480``), else the ``width``/``height`` arguments, else EVT 3.0 and
+    1280 x 720 px. A lost or refused
     connection is retried with exponential backoff (``backoff_s`` doubling up to
     ``max_backoff_s``); ``read`` never blocks longer than its timeout.
     """
 
-    def __init__(self, url: str, connect_timeout_s: float = 2.0, backoff_s: float = 0.1,
-                 max_backoff_s: float = 2.0, recv_bytes: int = 1 << 18) -> None:
+    def __init__(self, url: str, width: int | None = None, height: int | None = None,
+                 connect_timeout_s: float = 2.0, backoff_s: float = 0.1, max_backoff_s: float = 2.0,
+                 recv_bytes: int = 1 << 18) -> None:
         super().__init__()
         u = urllib.parse.urlsplit(url)
         if not u.hostname or not u.port:
@@ -182,7 +184,7 @@ class TcpSource(EventSource):
         self.host, self.port, self.name = u.hostname, u.port, f"tcp {u.hostname}:{u.port}"
         try:
             self.version = {"3": "3.0", "2": "2.0", "21": "2.1"}.get(q.get("evt", "3"), q.get("evt", "3"))
-            self.width, self.height = int(q.get("width", 1280)), int(q.get("height", 720))
+            self.width, self.height = int(q.get("width", width or 1280)), int(q.get("height", height or 720))
         except ValueError:
             raise SourceError(f"{url!r}: width and height must be integers") from None
         make_decoder(self.version)  # validates the version early
@@ -385,7 +387,8 @@ class InivationSource(EventSource):
 
 def open_source(url_or_path: str, speed: float = 1.0, **opts) -> EventSource:
     """Open an event source by URL scheme (``tcp://``, ``prophesee:``, ``inivation:``) or by file
-    extension (.raw, .dat, .aedat4, .csv, .npy, .npz). ``speed`` applies to files.
+    extension (.raw, .dat, .aedat4, .csv, .npy, .npz). ``speed`` applies to files; ``opts`` go
+    to the backend (e.g. ``width``/``height`` for tcp://, ``loop`` for files).
     Raises :class:`SourceError` with a clear message if it cannot."""
     s = str(url_or_path)
     low = s.lower()

@@ -1,0 +1,111 @@
+"""Slicing (fixed windows, empty ones emitted, across chunks) and filters on labelled simulator data."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from arena.events import make_events
+from camera_edge.filters import BackgroundActivityFilter, HotPixelFilter, RoiFilter
+from camera_edge.pipeline import EdgePipeline
+from camera_edge.slicing import Slicer
+
+
+def _ev(ts, x=1, y=1):
+    ts = np.asarray(ts)
+    return make_events(np.full(ts.size, x), np.full(ts.size, y), np.zeros(ts.size), ts)
+
+
+def test_slices_are_contiguous_and_empty_ones_are_emitted():
+    s = Slicer(10_000)
+    out = s.push(_ev([12_000, 15_000, 51_000]))
+    assert [(w.t_start_us, w.t_end_us, w.events.size) for w in out] == [
+        (10_000, 20_000, 2), (20_000, 30_000, 0), (30_000, 40_000, 0), (40_000, 50_000, 0)]
+    assert s.push(_ev([55_000])) == []
+    closed = s.advance(70_000)  # sensor time advanced without events
+    assert [(w.t_start_us, w.events.size) for w in closed] == [(50_000, 2), (60_000, 0)]
+    assert [(w.t_start_us, w.events.size) for w in s.flush()] == [(70_000, 0)]
+
+
+def test_slicing_is_independent_of_chunk_boundaries():
+    rng = np.random.default_rng(0)
+    ev = _ev(np.sort(rng.integers(0, 1_000_000, 20_000)))
+    whole = Slicer(10_000)
+    ref = whole.push(ev) + whole.flush()
+    for cuts in ([5], [3, 777, 778, 19_000], list(range(0, 20_000, 999))):
+        s = Slicer(10_000)
+        got = []
+        for a, b in zip([0, *cuts], [*cuts, ev.size]):
+            got += s.push(ev[a:b])
+        got += s.flush()
+        assert [(w.t_start_us, w.events.size) for w in got] == [(w.t_start_us, w.events.size) for w in ref]
+    assert sum(w.events.size for w in ref) == ev.size and len(ref) == 100
+
+
+def test_a_long_silence_restarts_windows_instead_of_flooding():
+    s = Slicer(10, max_gap_slices=5)
+    out = s.push(_ev([0, 1_000_000]))
+    assert len(out) == 1 and s.skipped_gaps == 1
+
+
+@pytest.fixture(scope="module")
+def labelled():
+    from simulator.scenarios import Scenario, generate
+
+    rec = generate(Scenario(n_robots=3, pattern="circle", duration_s=1.5, seed=3))
+    return rec
+
+
+def test_background_filter_keeps_signal_drops_noise(labelled):
+    ev, sig = labelled.events, labelled.is_signal
+    assert (~sig).sum() > 1000, "the scenario should contain noise"
+    f = BackgroundActivityFilter(labelled.width, labelled.height, dt_us=10_000)
+    keep = np.zeros(ev.size, bool)
+    # filter in chunks, as the edge does, and find which events were kept
+    idx = np.arange(ev.size)
+    for a in range(0, ev.size, 50_000):
+        chunk = ev[a:a + 50_000]
+        kept = f(chunk)
+        keep[idx[a:a + 50_000][np.isin(chunk, kept)]] = True
+    signal_kept = keep[sig].mean()
+    noise_dropped = 1 - keep[~sig].mean()
+    assert signal_kept >= 0.95, signal_kept
+    assert noise_dropped >= 0.90, noise_dropped
+    assert f.n_in == ev.size and f.n_out == keep.sum()
+
+
+def test_hot_pixels_are_learned_and_saved(tmp_path):
+    rng = np.random.default_rng(1)
+    n = 50_000
+    ev = make_events(rng.integers(0, 320, n), rng.integers(0, 240, n), rng.integers(0, 2, n),
+                     np.sort(rng.integers(0, 3_000_000, n)))
+    hot = make_events(np.full(3000, 17), np.full(3000, 9), np.ones(3000), np.linspace(0, 3_000_000, 3000))
+    ev = np.concatenate([ev, hot])
+    ev = ev[np.argsort(ev["t"], kind="stable")]
+    f = HotPixelFilter(320, 240, learn_us=1_000_000)
+    out = np.concatenate([f(ev[a:a + 7000]) for a in range(0, ev.size, 7000)])
+    assert f.hot_pixels_.tolist() == [[17, 9]]
+    late = out[out["t"] > 1_000_000]
+    assert not ((late["x"] == 17) & (late["y"] == 9)).any()
+    f.save(tmp_path / "hot.txt")
+    g = HotPixelFilter(320, 240, path=tmp_path / "hot.txt")
+    assert not g.learning and g(hot).size == 0
+
+
+def test_roi_from_calibration_keeps_inside_only(labelled):
+    f = RoiFilter.from_calibration(json.loads(json.dumps(labelled.calibration)))
+    inside = make_events([320], [240], [1], [0])
+    outside = make_events([2], [2], [1], [0])
+    assert f(inside).size == 1 and f(outside).size == 0
+    assert f.n_in == 2 and f.n_out == 1
+
+
+def test_pipeline_counts_filtered_events_per_window():
+    f = RoiFilter(100, 100, [(0, 0), (50, 0), (50, 50), (0, 50)])
+    p = EdgePipeline([f], slice_us=1000)
+    ev = make_events([10, 90, 20, 95], [10, 90, 20, 95], [1, 1, 1, 1], [0, 100, 1500, 2500])
+    wins = p.push(ev) + p.flush()
+    assert [(w.events.size, w.filtered) for w in wins] == [(1, 1), (1, 0), (0, 1)]
+    assert (p.n_in, p.n_out) == (4, 2)
