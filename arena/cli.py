@@ -50,7 +50,7 @@ def _register_router(sub) -> None:
                "  arena router -l tls/0.0.0.0:7447 --zenoh-config deploy/router.json5\n"
                "  arena router -e tcp/198.18.0.2:7447           # mesh with another router")
     p.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=None,
-                   help="endpoint to listen on, repeatable (default tcp/127.0.0.1:7447)")
+                   help="endpoint to listen on, repeatable (default: the --zenoh-config file's, else tcp/127.0.0.1:7447)")
     p.add_argument("-e", "--connect", metavar="ENDPOINT", action="append", default=None,
                    help="other routers to connect to (mesh), repeatable")
     p.add_argument("--zenoh-config", metavar="JSON5", default=None,
@@ -66,9 +66,14 @@ def _run_router(args) -> int:
     from arena.service import Service, stop_on_signals
     from arena.session import ZenohSettings
 
-    settings = ZenohSettings(mode="router", connect=list(args.connect or []),
-                             listen=list(args.listen or ["tcp/127.0.0.1:7447"]),
+    # Without -l, a --zenoh-config file's own listen endpoints are kept (e.g. deploy/zenoh/router.json5).
+    listen = list(args.listen or ([] if args.zenoh_config else ["tcp/127.0.0.1:7447"]))
+    settings = ZenohSettings(mode="router", connect=list(args.connect or []), listen=listen,
                              config_file=args.zenoh_config, lease_ms=args.lease_ms)
+    if not settings.listen:
+        settings.listen = json.loads(settings.to_zenoh_config().get_json("listen/endpoints") or "[]")
+        if isinstance(settings.listen, dict):  # per-mode values
+            settings.listen = settings.listen.get("router") or []
     import re
     import socket
 
