@@ -461,14 +461,16 @@ def write_study_report(out: Path, study: Study, plan: StudyPlan) -> Path:
         _plot_table(out / "table.png", study, plan)
         md += ["## Robots x pattern x power (the paper's table)", "",
                "Paper: precision, recall, MAE (cm), MOTA as published. Ours: both trackers on the same "
-               "recording; heading MAE in degrees (paper: 5.8-13.0 on circles, 30.5-50.6 on squares).", ""]
+               "recording; heading MAE in degrees (the paper gives a range over its single-robot runs).", ""]
         for power in plan.table_powers:
             pi = POWERS.index(power)
             rows = []
             for pattern in PATTERNS:
                 for n in plan.table_robots:
                     p = PAPER_TABLE[(n, pattern)]
-                    rows.append([n, pattern, "paper", p[0][pi], p[1][pi], p[2][pi], p[3][pi], "-", "-", "-", "-"])
+                    heading = PAPER_HEADING[pattern] if n == 1 else "-"
+                    rows.append([n, pattern, "paper", p[0][pi], p[1][pi], p[2][pi], p[3][pi], heading,
+                                 "-", "-", "-"])
                     for trk in TRACKERS:
                         r = next(iter(_runs(study, "table", n_robots=n, pattern=pattern, power=power,
                                             tracker=trk)), None)

@@ -306,13 +306,11 @@ class _RobotTruth:
 
 def align(tracks: np.ndarray, truth: np.ndarray, gate_m: float = 0.10, *, moved_only: bool = True,
           move_speed_mps: float = 0.01, move_dist_m: float = 0.01, merge_us: int = 1000,
-          max_gap_us: int = 500_000, exclude_states: Iterable[str] = ("tentative",),
-          frame_times: np.ndarray | None = None) -> Alignment:
+          max_gap_us: int = 500_000, exclude_states: Iterable[str] = ("tentative",)) -> Alignment:
     """Put tracks and truth on common frames (see the module docstring for the rules).
 
     ``exclude_states``: track rows in these states are not scored (a tentative track is not yet a
-    claim that a robot is there). ``frame_times`` (µs) overrides the frames taken from the tracks.
-    If there are no tracks at all, the truth's own times are the frames (everything is a miss).
+    claim that a robot is there). If there are no tracks at all, the truth's own times are the frames (everything is a miss).
     """
     if gate_m <= 0:
         raise ValueError(f"gate must be positive, got {gate_m} m")
@@ -329,13 +327,7 @@ def align(tracks: np.ndarray, truth: np.ndarray, gate_m: float = 0.10, *, moved_
     track_ids = sorted(set(tracks["track_id"].tolist()), key=_natural_key) if len(tracks) else []
     tid_index = {t: i for i, t in enumerate(track_ids)}
 
-    if frame_times is not None:
-        frame_t = np.unique(np.asarray(frame_times, dtype=np.int64))
-        row_frame = np.searchsorted(frame_t, tracks["t_us"]) if len(tracks) else np.zeros(0, int)
-        ok = (row_frame < len(frame_t))
-        ok[ok] &= frame_t[row_frame[ok]] == tracks["t_us"][ok]
-        tracks, row_frame = tracks[ok], row_frame[ok]
-    elif len(tracks):
+    if len(tracks):
         frame_t, row_frame = _frame_groups(tracks["t_us"], merge_us)
         filled = _fill_gaps(frame_t)
         row_frame = np.searchsorted(filled, frame_t)[row_frame]
@@ -691,7 +683,7 @@ def evaluate(tracks: np.ndarray, truth: np.ndarray, gate_m: float = 0.10, moved_
 
     ``gate_m``: match distance gate in metres (default 10 cm). ``moved_only``: a robot counts only
     from its first motion. Further options (``merge_us``, ``max_gap_us``, ``exclude_states``,
-    ``move_speed_mps``, ``move_dist_m``, ``frame_times``) go to :func:`align`.
+    ``move_speed_mps``, ``move_dist_m``) go to :func:`align`.
     """
     al = align(tracks, truth, gate_m, moved_only=moved_only, **align_options)
     return scores_from_alignment(al)
