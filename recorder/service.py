@@ -1,0 +1,141 @@
+"""Zenoh side of the recorder: ``record`` (subscribe and write) and ``replay`` (read and publish).
+
+Recording: one Zenoh subscriber on the key expressions; its callback only timestamps the sample and
+puts it in a bounded queue (a full queue drops the sample and counts it in ``dropped``), one
+writer thread empties the queue into :class:`~recorder.mcapio.RunWriter`. Stopping (duration over,
+SIGTERM, Ctrl-C) undeclares the subscriber, drains the queue and finishes the MCAP file.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+from arena.service import Service
+from recorder.mcapio import RecordedMessage, RunWriter, read_run
+
+log = logging.getLogger("arena.recorder")
+
+
+@dataclass
+class RecordResult:
+    """What one recording wrote: messages, payload bytes, samples dropped, seconds recorded."""
+
+    path: Path
+    messages: int
+    bytes: int
+    dropped: int
+    seconds: float
+
+
+def record(session: zenoh.Session, path: str | Path, keys: Iterable[str], stop: threading.Event,
+           duration_s: float | None = None, name: str = "recorder", queue_size: int = 10_000,
+           on_ready: Callable[[], None] | None = None, metadata: dict[str, str] | None = None) -> RecordResult:
+    """Record every sample on ``keys`` into the MCAP file ``path`` until ``stop`` is set or
+    ``duration_s`` seconds have passed; always finishes the file. Publishes status and liveliness
+    as ``recorder/<name>`` (counters ``messages``, ``bytes``, ``dropped``; gauge ``queue``)."""
+    q: queue.Queue = queue.Queue(maxsize=queue_size)
+    done = object()
+    t0 = time.monotonic()
+    with Service(session, "recorder", name) as svc, RunWriter(path, metadata=metadata) as writer:
+        def on_sample(sample: zenoh.Sample) -> None:
+            item = (str(sample.key_expr), sample.payload.to_bytes(), time.time_ns())
+            try:
+                q.put_nowait(item)
+            except queue.Full:
+                svc.count("dropped")
+                svc.error(f"write queue full ({queue_size} samples): dropping samples")
+
+        def write_loop() -> None:
+            while True:
+                item = q.get()
+                if item is done:
+                    return
+                key, payload, log_ns = item
+                try:
+                    writer.add(key, payload, log_ns)
+                except Exception as exc:  # noqa: BLE001 - one bad sample must not end the recording
+                    svc.error(f"cannot record a sample on {key}: {exc}")
+                    continue
+                svc.count("messages")
+                svc.count("bytes", len(payload))
+
+        svc.on_tick(lambda s: s.gauge("queue", q.qsize()))
+        thread = threading.Thread(target=write_loop, name="mcap-writer", daemon=True)
+        thread.start()
+        subs = [session.declare_subscriber(k, on_sample) for k in keys]
+        try:
+            if on_ready is not None:
+                on_ready()
+            stop.wait(duration_s)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            for s in subs:
+                s.undeclare()
+            q.put(done)
+            thread.join()
+        return RecordResult(Path(path), writer.messages, writer.bytes, int(svc.counter("dropped")),
+                            time.monotonic() - t0)
+
+
+@dataclass
+class ReplayResult:
+    """What one replay published: messages, passes over the file, seconds, and the lag behind the
+    recorded timing at the end (s; 0 when replaying as fast as possible)."""
+
+    messages: int
+    passes: int
+    seconds: float
+    max_lag_s: float
+
+
+def replay(session: zenoh.Session, path: str | Path, stop: threading.Event, speed: float = 1.0,
+           keys: Iterable[str] | None = None, loop: bool = False,
+           on_message: Callable[[RecordedMessage], None] | None = None) -> ReplayResult:
+    """Publish the recorded samples of ``path`` on their original keys with their original payloads,
+    in log-time order, with the recorded spacing divided by ``speed`` (0: as fast as possible).
+    ``loop`` starts again at the end until ``stop`` is set. Publishers block rather than drop when
+    the network is congested (a replay is meant to be lossless)."""
+    keys = list(keys) if keys else None
+    pubs: dict[str, zenoh.Publisher] = {}
+    n, passes, max_lag = 0, 0, 0.0
+    t_begin = time.monotonic()
+    try:
+        while not stop.is_set():
+            t0_wall, t0_log, n_pass = None, None, n
+            for m in read_run(path, keys):
+                if stop.is_set():
+                    break
+                if speed > 0:
+                    if t0_wall is None:
+                        t0_wall, t0_log = time.monotonic(), m.log_time_ns
+                    due = t0_wall + (m.log_time_ns - t0_log) / 1e9 / speed
+                    wait = due - time.monotonic()
+                    if wait > 0 and stop.wait(wait):
+                        break
+                    max_lag = max(max_lag, -wait)
+                pub = pubs.get(m.key)
+                if pub is None:
+                    pub = pubs[m.key] = session.declare_publisher(
+                        m.key, congestion_control=zenoh.CongestionControl.BLOCK,
+                        reliability=zenoh.Reliability.RELIABLE)
+                pub.put(m.payload)
+                n += 1
+                if on_message is not None:
+                    on_message(m)
+            else:
+                passes += 1
+                if not loop or n == n_pass:  # nothing to loop over
+                    break
+    finally:
+        for pub in pubs.values():
+            pub.undeclare()
+    return ReplayResult(n, passes, time.monotonic() - t_begin, max_lag)
