@@ -12,7 +12,8 @@ each frame when it is captured.
 
 * :class:`HsvDetector` — the paper's method made robust: HSV thresholds per robot,
   morphology, external contours, area and shape (solidity, aspect) checks, the centroid by
-  moments of the blob's convex hull (so a front mark does not bias it). Heading: the shell
+  moments of the convex hull of the blob's lit top face (so neither the front mark nor the
+  shaded shell sides bias it). Heading: the shell
   outline's orientation (``minAreaRect`` in arena metres, modulo 90° for a square shell)
   resolved by the dark front mark (a hole in the blob near its front edge) when present,
   else by the direction of motion (assuming forward driving); ``nan`` when neither is known.
@@ -208,12 +209,15 @@ class HsvRange:
 
 
 def sample_hsv_range(frame: np.ndarray, pixel: tuple[float, float], radius: int = 3,
-                     margin: tuple[int, int, int] = (8, 50, 60)) -> HsvRange:
+                     margin: tuple[int, int, int] = (8, 50, 60), v_floor: float = 0.3) -> HsvRange:
     """Sample a robot's HSV range from a BGR frame around ``pixel`` (u, v), px.
 
     Takes the 5th-95th percentile of H, S and V in a ``(2 radius + 1)`` square (click on the
     middle of the shell top, away from the front mark) and widens it by ``margin`` (H, S, V).
-    The hue is handled circularly (a red shell gives a wrapping range).
+    For coloured shells the value (brightness) range reaches down to ``v_floor`` times the
+    sampled one, so the range still holds when the light is dimmed (hue and saturation do
+    not change with the light level). The hue is handled circularly (a red shell gives a
+    wrapping range).
     """
     h, w = frame.shape[:2]
     u, v = int(round(pixel[0])), int(round(pixel[1]))
@@ -232,7 +236,7 @@ def sample_hsv_range(frame: np.ndarray, pixel: tuple[float, float], radius: int 
     d_lo, d_hi = np.percentile(dev, [5, 95])
     h_lo = int(math.floor(mean + d_lo - margin[0])) % 180
     h_hi = int(math.ceil(mean + d_hi + margin[0])) % 180
-    return HsvRange((h_lo, int(max(0, s_lo - margin[1])), int(max(0, v_lo - margin[2]))),
+    return HsvRange((h_lo, int(max(0, s_lo - margin[1])), int(max(25, v_lo * v_floor))),
                     (h_hi, 255, int(min(255, v_hi + margin[2]))))
 
 
@@ -263,13 +267,17 @@ class HsvDetector:
         front_mark: look for the dark front mark (a hole near the front edge).
         motion_min_m: displacement over ``motion_window_us`` above which the direction of
             motion resolves the heading when no front mark is seen, m.
+        motion_window_us: how far back the motion heading looks, µs.
+        top_ratio: blob pixels darker than this fraction of the blob's bright (90th
+            percentile) value are the shaded shell sides the perspective shows; they are
+            left out of the centroid and the outline.
     """
 
     name = "hsv"
 
     def __init__(self, ranges: dict, homography: Homography, shell_size_m=(0.10, 0.10),
                  area_tolerance: float = 2.2, min_solidity: float = 0.55, front_mark: bool = True,
-                 motion_min_m: float = 0.02, motion_window_us: int = 300_000):
+                 motion_min_m: float = 0.02, motion_window_us: int = 300_000, top_ratio: float = 0.75):
         self.ranges = {name: HsvRange.parse(r) for name, r in ranges.items()}
         self.homography = homography
         self.shell_area_m2 = float(shell_size_m[0]) * float(shell_size_m[1])
@@ -278,6 +286,7 @@ class HsvDetector:
         self.front_mark = bool(front_mark)
         self.motion_min_m = float(motion_min_m)
         self.motion_window_us = int(motion_window_us)
+        self.top_ratio = float(top_ratio)
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.history_: dict[str, deque] = {}
 
@@ -288,12 +297,12 @@ class HsvDetector:
         out = []
         for robot, rng in self.ranges.items():
             mask = cv2.morphologyEx(rng.mask(hsv), cv2.MORPH_OPEN, self._kernel)
-            det = self._best_blob(mask, robot, t_us)
+            det = self._best_blob(mask, hsv[..., 2], robot, t_us)
             if det is not None:
                 out.append(det)
         return out
 
-    def _best_blob(self, mask: np.ndarray, robot: str, t_us: int) -> Detection | None:
+    def _best_blob(self, mask: np.ndarray, value: np.ndarray, robot: str, t_us: int) -> Detection | None:
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         best = None
         lo = self.shell_area_m2 / self.area_tolerance
@@ -320,11 +329,37 @@ class HsvDetector:
         if best is None:
             return None
         _, contour, hull, hull_m = best
+        refined = self._top_face(mask, value, contour)
+        if refined is not None:
+            mask, hull = refined
+            hull_m = self.homography.to_arena(hull.reshape(-1, 2).astype(float)).astype(np.float32)
         m = cv2.moments(hull)
         u, v = m["m10"] / m["m00"], m["m01"] / m["m00"]
         x, y = (float(a) for a in self.homography.to_arena(np.array([u, v])))
         yaw = self._heading(mask, hull, hull_m, (x, y), robot, t_us)
         return Detection(int(t_us), robot, x, y, yaw, float(u), float(v), self.name)
+
+    def _top_face(self, mask, value, contour):
+        """Keep the brightest part of the blob: the lit shell top, not the shaded sides the
+        perspective shows (they would pull the centroid outwards). Returns (mask, hull) or
+        None when the blob has no such split."""
+        x0, y0, w, h = cv2.boundingRect(contour)
+        blob = np.zeros((h, w), np.uint8)
+        cv2.drawContours(blob, [contour - np.array([x0, y0], np.int32)], -1, 255, cv2.FILLED)
+        blob &= mask[y0:y0 + h, x0:x0 + w]
+        vals = value[y0:y0 + h, x0:x0 + w]
+        thr = self.top_ratio * float(np.percentile(vals[blob > 0], 90))
+        top = np.where(vals >= thr, blob, 0).astype(np.uint8)
+        top = cv2.morphologyEx(top, cv2.MORPH_OPEN, self._kernel)
+        cs, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        if not cs:
+            return None
+        c = max(cs, key=cv2.contourArea)
+        if cv2.contourArea(c) < 0.4 * cv2.contourArea(contour):
+            return None
+        out = np.zeros_like(mask)
+        out[y0:y0 + h, x0:x0 + w] = top
+        return out, cv2.convexHull(c + np.array([x0, y0], np.int32))
 
     def _heading(self, mask, hull, hull_m, xy, robot, t_us) -> float:
         # outline orientation in arena metres, modulo 90 degrees (square) / 180 (oblong)

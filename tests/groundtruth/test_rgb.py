@@ -108,6 +108,19 @@ def test_hsv_detector_meets_targets(n):
     assert len(yaw) >= 0.95 * len(pos)               # the front mark resolves the heading
 
 
+def test_hsv_ranges_sampled_in_full_light_hold_when_dimmed():
+    """Hue and saturation do not change with the light; the value range reaches down. Only
+    the lit shell top counts (not the shaded sides), so the centroid stays within mm."""
+    w = scene(4, markers=False)
+    m = WebcamModel(w)
+    det = HsvDetector(sampled_ranges(w, m), homography_from_calibration(m.calibration))
+    w.lighting = "dimmed"
+    pos, yaw, misses = run(w, m, det, 48)
+    assert misses == 0
+    assert np.median(pos) <= 0.25, f"median position error {np.median(pos):.2f} cm"
+    assert np.median(yaw) <= 2.0
+
+
 def test_hsv_heading_from_motion_without_front_mark():
     """Without the front mark the outline is ambiguous; forward motion resolves it."""
     w = scene(4, markers=False)
