@@ -9,7 +9,7 @@ few degrees and seen with a slight keystone, like a camera bolted to a ceiling b
 
 Reflectance model (0..1, linear light): foam mats 0.85 with ~2 % low-frequency texture and
 faint darker seams between the 61 cm mats; the floor around the arena 0.3; shells
-``0.04 + 0.62 * luminance(colour)`` (plastic is darker than foam: a yellow shell is only a
+``0.04 + 0.75 * luminance(colour)`` (plastic is darker than foam: a yellow shell is only a
 little darker than the mat, a black one ~20x darker); treads 0.06 (black rubber strips
 along both sides); an optional ArUco marker (DICT_4X4_50, 6 x 6 cells including the
 border) printed on the shell top.
@@ -28,7 +28,7 @@ from simulator.world import RobotSpec
 MAT_REFLECTANCE = 0.85
 FLOOR_REFLECTANCE = 0.30
 TREAD_REFLECTANCE = 0.06
-TREAD_WIDTH_M = 0.012
+TREAD_WIDTH_M = 0.008
 MARKER_SIDE_M = 0.06
 MAT_SIZE_M = 0.61
 #: Illumination per lighting level (relative irradiance; "full" = 1).
@@ -42,7 +42,7 @@ def shell_reflectance(color_rgb: tuple[int, int, int]) -> float:
         raise ValueError(f"color_rgb must be three values in 0..255, got {color_rgb!r}")
     lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
     lum = 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2]
-    return float(0.04 + 0.62 * lum)
+    return float(0.04 + 0.75 * lum)
 
 
 def marker_pattern(marker_id: int | None) -> np.ndarray:

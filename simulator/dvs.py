@@ -10,8 +10,9 @@ Per pixel (after v2e, Hu et al. 2021, and ESIM, Rebecq et al. 2018):
 * a memorised level per pixel; when the low-passed level departs from it by the pixel's
   ON or OFF threshold (``threshold_on/off`` with per-pixel Gaussian mismatch
   ``threshold_sigma``) the pixel fires one event per threshold crossed, with timestamps
-  interpolated linearly inside the internal time step (µs) and spaced by at least the
-  refractory period; the memory advances by one threshold per event fired;
+  interpolated linearly inside the internal time step (µs); the memory advances by one
+  threshold per crossing, and crossings within the refractory period after the pixel's
+  last event are lost (the pixel is held in reset, as in v2e);
 * background activity: Poisson events at ``noise_rate_hz`` per pixel with uniform times
   over the whole sensor, plus a few hot pixels firing at ``hot_rate_hz``; labelled noise.
 
@@ -279,25 +280,24 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                     d_old = old - ref
                     span = d_new - d_old
                     tl = t_last[v, u]
-                    k = 0
-                    while k < max_per_px:
+                    k = 0           # threshold crossings
+                    e = 0           # events emitted (crossings inside the refractory period are lost)
+                    while e < max_per_px:
                         level = sign * (k + 1) * thr
                         if abs(level) > abs(d_new):
                             break
                         frac = (level - d_old) / span if span != 0.0 else 1.0
                         frac = min(max(frac, 0.0), 1.0)
                         te = t_prev + max(1, int(frac * dt_us + 0.5))
-                        if te < tl + refr_us:
-                            te = tl + refr_us
-                        if te > t_prev + dt_us:
-                            break
-                        ox[n] = u
-                        oy[n] = v
-                        op[n] = 1 if sign > 0 else 0
-                        ot[n] = te
-                        n += 1
-                        tl = te
                         k += 1
+                        if te - tl >= refr_us:
+                            ox[n] = u
+                            oy[n] = v
+                            op[n] = 1 if sign > 0 else 0
+                            ot[n] = te
+                            n += 1
+                            tl = te
+                            e += 1
                     if k > 0:
                         lmem[v, u] = ref + sign * k * thr
                         t_last[v, u] = tl
