@@ -193,6 +193,7 @@ class TcpSource(EventSource):
         self._sock: socket.socket | None = None
         self._decoder = None
         self._pending = b""
+        self._carry = b""  # event bytes that arrived with the header
         self._next_try = 0.0
         self._delay = backoff_s
         self._closed = False
@@ -226,7 +227,7 @@ class TcpSource(EventSource):
         # a header, if any, arrives first: read it now so width/height are known
         deadline = time.monotonic() + self.connect_timeout_s
         while self._decoder is None and time.monotonic() < deadline and self._sock is not None:
-            self._recv(max(0.0, deadline - time.monotonic()))
+            self._carry += self._recv(max(0.0, deadline - time.monotonic()))
         if self._decoder is None and self._sock is not None and self._pending:
             self._start_decoder(b"")
 
@@ -298,7 +299,8 @@ class TcpSource(EventSource):
                 return empty_events(0)
             self._connect()
             return empty_events(0)
-        data = self._recv(timeout)
+        data = self._carry or self._recv(timeout)
+        self._carry = b""
         if not data or self._decoder is None:
             return empty_events(0)
         ev = self._decoder.feed(data)
