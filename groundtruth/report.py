@@ -115,10 +115,14 @@ def plot_trajectories(path: str | Path, tracks: np.ndarray, truth: np.ndarray,
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 6.4))
     ax.add_patch(plt.Rectangle((0, 0), ARENA_SIZE_M, ARENA_SIZE_M, fill=False, ec="0.6", lw=1))
-    for r in np.unique(truth["robot"]):
+    for k, r in enumerate(np.unique(truth["robot"])):
         sel = truth[truth["robot"] == r]
         sel = sel[np.argsort(sel["t_us"])]
-        ax.plot(sel["x_m"], sel["y_m"], "-", lw=2.5, alpha=0.35, label=f"truth {r}")
+        ax.plot(sel["x_m"], sel["y_m"], "-", color="0.55", lw=4, alpha=0.45,
+                label="truth" if k == 0 else None)
+        if len(sel):
+            ax.annotate(str(r), (sel["x_m"][0], sel["y_m"][0]), fontsize=8, color="0.25",
+                        xytext=(4, 4), textcoords="offset points")
     ids = np.unique(tracks["track_id"]) if len(tracks) else []
     cmap = plt.get_cmap("tab10")
     for k, tid in enumerate(ids):
@@ -130,7 +134,7 @@ def plot_trajectories(path: str | Path, tracks: np.ndarray, truth: np.ndarray,
     ax.set_aspect("equal")
     ax.set_xlabel("x (m, arena)")
     ax.set_ylabel("y (m, arena)")
-    ax.set_title(title or "trajectories: truth (lines) vs tracks (points)")
+    ax.set_title(title or "trajectories: truth (grey, robot names at start) vs tracks (points)")
     ax.legend(fontsize=7, loc="upper right", markerscale=4)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
