@@ -53,6 +53,9 @@ class Detection:
         heading_source: ``"motion"``, ``"polarity"`` or ``""``.
         radius: rms distance of the cluster's pixels to its centroid, px.
         t_vel_us: time the velocity and the motion heading refer to (mean event time), µs.
+        shape_axis: orientation of the cluster's shape, rad in the sensor frame, known only
+            modulo 2*pi/``shape_order`` (NaN when the shape is too round to tell).
+        shape_order: the chassis' rotational symmetry (4 for a square footprint, 2 for a rectangle).
     """
 
     u: float
@@ -67,6 +70,8 @@ class Detection:
     heading_source: str = ""
     radius: float = math.nan
     t_vel_us: int | None = None
+    shape_axis: float = math.nan
+    shape_order: int = 4
 
 
 # --------------------------------------------------------------------------- pixels
@@ -192,6 +197,9 @@ class DetectorConfig:
         noise_false_rate: tolerated probability that pure noise reaches minPts at a pixel.
         min_area_chassis: least cluster area (active pixels) as a fraction of the chassis area.
         min_speed_mps: speed above which the motion direction gives the heading, m/s.
+        chassis_aspect: footprint length / width; near 1 the shape gives the heading modulo
+            90 degrees (4-fold), otherwise modulo 180 degrees.
+        min_anisotropy: least normalised harmonic amplitude for a shape orientation.
         backend: DBSCAN backend, ``grid`` (exact, fast) or ``sklearn``.
     """
 
@@ -201,6 +209,8 @@ class DetectorConfig:
     noise_false_rate: float = 1e-7
     min_area_chassis: float = 0.12
     min_speed_mps: float = 0.04
+    chassis_aspect: float = 1.0
+    min_anisotropy: float = 0.08
     backend: str = "grid"
 
     def validate(self) -> None:
@@ -227,29 +237,77 @@ def _poisson_quantile(lam: float, tail: float) -> int:
 
 
 @njit(cache=True)
-def _cluster_moments(ev_label, t, x, y, k):
-    """Per cluster sums over events: n, t, t2, x, y, xt, yt, x2, y2, tmax (t relative to t[0])."""
-    s = np.zeros((k, 10))
-    t0 = t[0] if t.shape[0] else 0
-    for i in range(ev_label.shape[0]):
-        c = ev_label[i]
+def _cluster_moments(labels, pu, pv, cnt, st, st2, k):
+    """Per cluster sums over its pixels' events: n, t, t2, x, y, xt, yt, x2, y2 and the
+    bounding box umin, umax, vmin, vmax (px; t in s from the window's origin)."""
+    s = np.zeros((k, 13))
+    for c in range(k):
+        s[c, 9] = 1e18
+        s[c, 11] = 1e18
+        s[c, 10] = -1e18
+        s[c, 12] = -1e18
+    for j in range(labels.shape[0]):
+        c = labels[j]
         if c < 0:
             continue
-        ti = (t[i] - t0) * 1e-6
-        xi = float(x[i])
-        yi = float(y[i])
-        s[c, 0] += 1.0
-        s[c, 1] += ti
-        s[c, 2] += ti * ti
-        s[c, 3] += xi
-        s[c, 4] += yi
-        s[c, 5] += xi * ti
-        s[c, 6] += yi * ti
-        s[c, 7] += xi * xi
-        s[c, 8] += yi * yi
-        if s[c, 0] == 1.0 or ti > s[c, 9]:
-            s[c, 9] = ti
+        n = float(cnt[j])
+        x = float(pu[j])
+        y = float(pv[j])
+        s[c, 0] += n
+        s[c, 1] += st[j]
+        s[c, 2] += st2[j]
+        s[c, 3] += x * n
+        s[c, 4] += y * n
+        s[c, 5] += x * st[j]
+        s[c, 6] += y * st[j]
+        s[c, 7] += x * x * n
+        s[c, 8] += y * y * n
+        s[c, 9] = min(s[c, 9], x)
+        s[c, 10] = max(s[c, 10], x)
+        s[c, 11] = min(s[c, 11], y)
+        s[c, 12] = max(s[c, 12], y)
     return s
+
+
+@njit(cache=True)
+def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
+    """Per cluster, sum of count * z^order / |z|^(order-2) with z = (u - cx) + i (v - cy),
+    and the sum of count * |z|^2 (the normaliser): the shape's order-fold orientation."""
+    re = np.zeros(k)
+    im = np.zeros(k)
+    nz = np.zeros(k)
+    for j in range(labels.shape[0]):
+        c = labels[j]
+        if c < 0:
+            continue
+        dx = pu[j] - cx[c]
+        dy = pv[j] - cy[c]
+        r2 = dx * dx + dy * dy
+        if r2 <= 0.0:
+            continue
+        z = complex(dx, dy) ** order / r2 ** ((order - 2) / 2.0)
+        w = float(cnt[j])
+        re[c] += w * z.real
+        im[c] += w * z.imag
+        nz[c] += w * r2
+    return re, im, nz
+
+
+@njit(cache=True)
+def _pixel_stats(ev_pix, m, t, p, t_ref):
+    """Per-pixel count, ON count, sum of t and of t^2 (t in s from t_ref)."""
+    cnt = np.zeros(m, dtype=np.int64)
+    on = np.zeros(m, dtype=np.int64)
+    st = np.zeros(m)
+    st2 = np.zeros(m)
+    for i in range(ev_pix.shape[0]):
+        j = ev_pix[i]
+        ti = (t[i] - t_ref) * 1e-6
+        cnt[j] += 1
+        on[j] += p[i]
+        st[j] += ti
+        st2[j] += ti * ti
+    return cnt, on, st, st2
 
 
 class Detector:
@@ -283,9 +341,9 @@ class Detector:
         cell = max(4, int(round(self.chassis_px)))
         gw = self.width // cell + 1
         gh = self.height // cell + 1
-        counts = np.bincount((pv // cell) * gw + pu // cell, minlength=gw * gh).astype(float)
+        counts = np.bincount((pv // cell) * gw + pu // cell, minlength=gw * gh)
         # cells holding robots are the dense tail: drop the top 10 %
-        keep = np.sort(counts)[: max(1, int(0.9 * counts.size))]
+        keep = np.partition(counts, max(0, int(0.9 * counts.size) - 1))[: max(1, int(0.9 * counts.size))]
         rho = float(keep.mean()) / (cell * cell)
         self.noise_density_ = rho
         floor = int(math.ceil(self.config.min_fill * self._disk))
@@ -300,24 +358,42 @@ class Detector:
         """
         if events.size == 0:
             return []
+        pu, pv, _, ev_pix = self._pix(events["x"], events["y"], self.width, self.height)
+        t_ref = int(events["t"][0])
+        cnt, on, st, st2 = _pixel_stats(ev_pix, pu.size, events["t"], events["p"], t_ref)
+        return self.detect_pixels(pu, pv, cnt, st, st2, t_ref, t_end_us, hints)
+
+    def detect_window(self, window, t_end_us: int, hints: np.ndarray | None = None) -> list[Detection]:
+        """Detections from a :class:`tracker.accumulate.PixelWindow` ending at ``t_end_us`` (µs)."""
+        pu, pv, cnt, _, st, st2 = window.pixels()
+        if pu.size == 0:
+            return []
+        return self.detect_pixels(pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints)
+
+    def detect_pixels(self, pu, pv, cnt, st, st2, t_ref_us: int, t_end_us: int,
+                      hints: np.ndarray | None = None) -> list[Detection]:
+        """Detections from per-pixel statistics: pixel (u, v) px, event count, and sums of
+        event times and squared times (s from ``t_ref_us``)."""
         cfg = self.config
-        x, y, t = events["x"], events["y"], events["t"]
-        pu, pv, count, ev_pix = self._pix(x, y, self.width, self.height)
         ms = self._min_samples(pu, pv)
         self.min_samples_ = ms
         labels = BACKENDS[cfg.backend](pu, pv, self.eps_px, ms)
         k = int(labels.max()) + 1 if labels.size else 0
         if k == 0:
             return []
-        min_area = cfg.min_area_chassis * self.chassis_px ** 2
-        npx = np.bincount(labels[labels >= 0], minlength=k)
+        s = _cluster_moments(labels, pu, pv, cnt, st, st2, k)
         if hints is not None and len(hints) >= 2:
-            labels, k = self._split(labels, k, pu, pv, np.asarray(hints, dtype=float))
-            npx = np.bincount(labels[labels >= 0], minlength=k)
-        ev_label = labels[ev_pix]
-        s = _cluster_moments(ev_label, t, x, y, k)
-        t0 = int(t[0])
-        t_end_rel = (int(t_end_us) - t0) * 1e-6
+            labels, k2 = self._split(labels, k, s, pu, pv, np.asarray(hints, dtype=float))
+            if k2 != k:
+                k = k2
+                s = _cluster_moments(labels, pu, pv, cnt, st, st2, k)
+        npx = np.bincount(labels[labels >= 0], minlength=k)
+        order = 4 if 0.8 <= cfg.chassis_aspect <= 1.25 else 2
+        n_safe = np.maximum(s[:, 0], 1.0)
+        h_re, h_im, h_n = _cluster_harmonic(labels, pu, pv, cnt, s[:, 3] / n_safe, s[:, 4] / n_safe,
+                                            order, k)
+        min_area = cfg.min_area_chassis * self.chassis_px ** 2
+        t_end_rel = (int(t_end_us) - int(t_ref_us)) * 1e-6
         ppm = self.px_per_m
         dets = []
         for c in range(k):
@@ -334,7 +410,6 @@ class Detector:
             if stt <= 1e-12:
                 u, v = xm, ym
                 du = dv = sig = math.nan
-                t_eval = t_end_rel
             else:
                 bx = (s[c, 5] - n * xm * tm) / stt
                 by = (s[c, 6] - n * ym * tm) / stt
@@ -354,46 +429,54 @@ class Detector:
                 speed = math.hypot(du, dv)
                 if speed > cfg.min_speed_mps * ppm and speed > 3.0 * sig:
                     heading, src = math.atan2(dv, du), "motion"
+            axis = math.nan
+            if h_n[c] > 0 and math.hypot(h_re[c], h_im[c]) >= cfg.min_anisotropy * h_n[c]:
+                axis = math.atan2(h_im[c], h_re[c]) / order
+                if order == 4:
+                    axis -= math.pi / 4   # the 4th harmonic points at the corners
             dets.append(Detection(u=u, v=v, t_us=int(t_end_us), n_events=int(n), n_pixels=int(npx[c]),
-                                  du=du, dv=dv, speed_sigma=sig, heading=heading,
-                                  heading_source=src, radius=radius, t_vel_us=t0 + int(round(tm * 1e6))))
+                                  du=du, dv=dv, speed_sigma=sig, heading=heading, heading_source=src,
+                                  radius=radius, t_vel_us=int(t_ref_us) + int(round(tm * 1e6)),
+                                  shape_axis=axis, shape_order=order))
         return dets
 
-    def _split(self, labels, k, pu, pv, hints):
+    def _split(self, labels, k, s, pu, pv, hints):
         """Give each cluster holding >= 2 hints (px) one part per hint (nearest-seed
-        assignment refined by two centroid updates)."""
-        inside = [[] for _ in range(k)]
+        assignment refined by two centroid updates). Returns (labels, k)."""
         near = 0.5 * self.chassis_px
-        clustered = labels >= 0
-        if not clustered.any():
-            return labels, k
-        tree = cKDTree(np.column_stack([pu[clustered], pv[clustered]]))
-        d, j = tree.query(hints, distance_upper_bound=near)
-        lab_c = labels[clustered]
-        for h in range(len(hints)):
-            if math.isfinite(d[h]):
-                inside[lab_c[j[h]]].append(h)
-        labels = labels.copy()
-        for c in range(k):
-            hs = inside[c]
+        inside: dict[int, list[int]] = {}
+        for h, (hu, hv) in enumerate(hints):
+            box = (s[:, 9] - near <= hu) & (hu <= s[:, 10] + near) & (s[:, 11] - near <= hv) & (hv <= s[:, 12] + near)
+            for c in np.flatnonzero(box):
+                inside.setdefault(int(c), []).append(h)
+        out = None
+        for c, hs in inside.items():
             if len(hs) < 2:
-                continue
-            seeds = hints[hs].copy()
-            # two robots cannot overlap: seeds closer than half a chassis are one robot
-            dd = np.hypot(*(seeds[:, None, :] - seeds[None, :, :]).transpose(2, 0, 1))
-            if np.all(dd[np.triu_indices(len(hs), 1)] < 0.5 * self.chassis_px):
                 continue
             sel = np.flatnonzero(labels == c)
             pts = np.column_stack([pu[sel], pv[sel]]).astype(float)
+            seeds = hints[hs].copy()
+            d2 = ((pts[:, None, :] - seeds[None, :, :]) ** 2).sum(-1)
+            # a hint counts when the cluster has pixels near it
+            real = d2.min(0) <= near * near
+            if real.sum() < 2:
+                continue
+            seeds = seeds[real]
+            # two robots cannot overlap: seeds closer than half a chassis are one robot
+            dd = np.sqrt(((seeds[:, None, :] - seeds[None, :, :]) ** 2).sum(-1))
+            if np.all(dd[np.triu_indices(len(seeds), 1)] < near):
+                continue
             for _ in range(3):
                 part = np.argmin(((pts[:, None, :] - seeds[None, :, :]) ** 2).sum(-1), axis=1)
                 for q in range(len(seeds)):
                     if np.any(part == q):
                         seeds[q] = pts[part == q].mean(0)
+            if out is None:
+                out = labels.copy()
             for q in range(1, len(seeds)):
-                labels[sel[part == q]] = k
+                out[sel[part == q]] = k
                 k += 1
-        return labels, k
+        return (labels if out is None else out), k
 
 
 @njit(cache=True)

@@ -41,6 +41,7 @@ class FleetConfig:
         vel_sigma_mps: floor of the detection velocity noise, m/s.
         yaw_accel_radps2: heading process noise, rad/s^2.
         min_speed_mps: speed above which the motion heading is trusted, m/s.
+        shape_sigma_deg: noise of the shape orientation, degrees.
         confirm_hits: detections needed to confirm a track.
         tentative_max_misses: consecutive misses that delete a tentative track.
         stop_tau_s: time constant with which a coasting track brakes to rest, s.
@@ -56,6 +57,7 @@ class FleetConfig:
     vel_sigma_mps: float = 0.03
     yaw_accel_radps2: float = 30.0
     min_speed_mps: float = 0.04
+    shape_sigma_deg: float = 3.0
     confirm_hits: int = 4
     tentative_max_misses: int = 3
     stop_tau_s: float = 0.05
@@ -78,21 +80,55 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
+class _Axis:
+    """Constant-velocity Kalman filter along one arena axis: position (m), velocity (m/s)."""
+
+    __slots__ = ("p", "v", "pp", "pv", "vv")
+
+    def __init__(self, p: float, v: float, sp: float, sv: float) -> None:
+        self.p, self.v = p, v
+        self.pp, self.pv, self.vv = sp * sp, 0.0, sv * sv
+
+    def predict(self, dt: float, q: float) -> None:
+        self.p += self.v * dt
+        self.pp += 2.0 * dt * self.pv + dt * dt * self.vv + q * dt ** 4 / 4.0
+        self.pv += dt * self.vv + q * dt ** 3 / 2.0
+        self.vv += q * dt * dt
+
+    def update_p(self, z: float, r: float) -> None:
+        s = self.pp + r
+        kp, kv = self.pp / s, self.pv / s
+        y = z - self.p
+        self.p += kp * y
+        self.v += kv * y
+        pp, pv, vv = self.pp, self.pv, self.vv
+        self.pp, self.pv, self.vv = pp - kp * pp, pv - kp * pv, vv - kv * pv
+
+    def update_v(self, z: float, r: float) -> None:
+        s = self.vv + r
+        kp, kv = self.pv / s, self.vv / s
+        y = z - self.v
+        self.p += kp * y
+        self.v += kv * y
+        pp, pv, vv = self.pp, self.pv, self.vv
+        self.pp, self.pv, self.vv = pp - kp * pv, pv - kp * vv, vv - kv * vv
+
+
 class _Track:
     """One tracked robot: its filters and life cycle."""
 
     def __init__(self, tid: int, ob: Observation, cfg: FleetConfig) -> None:
         self.id = tid
         self.cfg = cfg
-        vx = ob.vx if math.isfinite(ob.vx) else 0.0
-        vy = ob.vy if math.isfinite(ob.vy) else 0.0
-        self.x = np.array([ob.x, ob.y, vx, vy], dtype=float)
-        s_v = 0.3 if not math.isfinite(ob.vx) else max(cfg.vel_sigma_mps, ob.speed_sigma if math.isfinite(ob.speed_sigma) else 0.0)
-        self.P = np.diag([cfg.pos_sigma_m ** 2, cfg.pos_sigma_m ** 2, s_v ** 2, s_v ** 2])
+        known = math.isfinite(ob.vx) and math.isfinite(ob.vy)
+        sv = max(cfg.vel_sigma_mps, ob.speed_sigma if math.isfinite(ob.speed_sigma) else 0.0) if known else 0.3
+        self.ax = _Axis(ob.x, ob.vx if known else 0.0, cfg.pos_sigma_m, sv)
+        self.ay = _Axis(ob.y, ob.vy if known else 0.0, cfg.pos_sigma_m, sv)
         self.t_us = int(ob.t_us)
+        # heading filter: yaw (rad), yaw rate (rad/s) and their covariance
         self.yaw = math.nan
         self.yaw_rate = 0.0
-        self.Py = np.diag([1.0, 1.0])
+        self.py = [1.0, 0.0, 1.0]
         self.state = TENTATIVE
         self.age = 0
         self.hits = 1
@@ -102,33 +138,36 @@ class _Track:
         self.robot: str | None = None
         self._update_yaw(ob)
 
+    @property
+    def xy(self) -> tuple[float, float]:
+        return self.ax.p, self.ay.p
+
+    def predicted(self, t_us: int) -> tuple[float, float]:
+        dt = max(0.0, (int(t_us) - self.t_us) * 1e-6)
+        return self.ax.p + self.ax.v * dt, self.ay.p + self.ay.v * dt
+
     # -- motion ----------------------------------------------------------
     def predict(self, t_us: int) -> None:
         dt = (int(t_us) - self.t_us) * 1e-6
         if dt <= 0:
             return
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
         q = self.cfg.accel_mps2 ** 2
-        G = np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]) * q
-        Q = np.zeros((4, 4))
-        Q[np.ix_([0, 2], [0, 2])] = G
-        Q[np.ix_([1, 3], [1, 3])] = G
-        self.x = F @ self.x
-        self.P = F @ self.P @ F.T + Q
+        self.ax.predict(dt, q)
+        self.ay.predict(dt, q)
         if not math.isnan(self.yaw):
             self.yaw = _wrap(self.yaw + self.yaw_rate * dt)
-            Fy = np.array([[1.0, dt], [0.0, 1.0]])
+            a, b, c = self.py
             qy = self.cfg.yaw_accel_radps2 ** 2
-            Qy = np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]) * qy
-            self.Py = Fy @ self.Py @ Fy.T + Qy
+            self.py = [a + 2 * dt * b + dt * dt * c + qy * dt ** 4 / 4, b + dt * c + qy * dt ** 3 / 2,
+                       c + qy * dt * dt]
         self.t_us = int(t_us)
 
     def coast(self, t_us: int) -> None:
         """No detection: the robot is at rest (or braking to rest)."""
         dt = (int(t_us) - self.last_seen_us) * 1e-6
         decay = math.exp(-max(dt, 0.0) / self.cfg.stop_tau_s)
-        self.x[2:] *= decay
+        self.ax.v *= decay
+        self.ay.v *= decay
         self.yaw_rate *= decay
         self.misses += 1
         self.n_events = 0
@@ -137,20 +176,13 @@ class _Track:
 
     def update(self, ob: Observation) -> None:
         cfg = self.cfg
+        r = cfg.pos_sigma_m ** 2
+        self.ax.update_p(ob.x, r)
+        self.ay.update_p(ob.y, r)
         if math.isfinite(ob.vx) and math.isfinite(ob.vy):
             sv = max(cfg.vel_sigma_mps, ob.speed_sigma if math.isfinite(ob.speed_sigma) else 0.0)
-            H = np.eye(4)
-            z = np.array([ob.x, ob.y, ob.vx, ob.vy])
-            R = np.diag([cfg.pos_sigma_m ** 2] * 2 + [sv ** 2] * 2)
-        else:
-            H = np.eye(4)[:2]
-            z = np.array([ob.x, ob.y])
-            R = np.eye(2) * cfg.pos_sigma_m ** 2
-        y = z - H @ self.x
-        S = H @ self.P @ H.T + R
-        K = self.P @ H.T @ np.linalg.inv(S)
-        self.x = self.x + K @ y
-        self.P = (np.eye(4) - K @ H) @ self.P
+            self.ax.update_v(ob.vx, sv * sv)
+            self.ay.update_v(ob.vy, sv * sv)
         self._update_yaw(ob)
         self.hits += 1
         self.misses = 0
@@ -162,34 +194,47 @@ class _Track:
             self.state = CONFIRMED
 
     def _update_yaw(self, ob: Observation) -> None:
-        """Heading filter: the motion heading (at t_vel) predicted to the pose time."""
-        if not math.isfinite(ob.yaw):
-            return
-        speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
-        if speed < self.cfg.min_speed_mps:
-            return
+        """Heading filter. Two measurements, both at the window's mean event time ``t_vel``
+        (the filter's yaw rate carries them to the pose time, so the heading does not lag):
+        the motion direction (when moving; it fixes the sign) and the shape orientation
+        (modulo the footprint's symmetry, resolved by the prediction; it keeps the heading
+        right through zero-point turns, when the motion direction is unknown)."""
         lag = ((ob.t_us - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
-        if math.isnan(self.yaw) or self.misses > 0 and abs(_wrap(ob.yaw + self.yaw_rate * lag - self.yaw)) > math.radians(30):
-            # first heading, or the robot turned while it was not seen: restart the filter
-            self.yaw = _wrap(ob.yaw)
-            self.yaw_rate = 0.0
-            self.Py = np.diag([math.radians(10) ** 2, 1.0])
-            return
-        # measurement: yaw at t - lag = yaw - rate * lag
-        Hy = np.array([[1.0, -lag]])
-        sy = math.radians(4.0) ** 2
-        if math.isfinite(ob.speed_sigma) and speed > 0:
-            sy += (ob.speed_sigma / speed) ** 2
-        innov = _wrap(ob.yaw - (self.yaw - self.yaw_rate * lag))
-        S = float(Hy @ self.Py @ Hy.T) + sy
-        K = (self.Py @ Hy.T / S).ravel()
-        self.yaw = _wrap(self.yaw + K[0] * innov)
-        self.yaw_rate = self.yaw_rate + K[1] * innov
-        self.Py = (np.eye(2) - np.outer(K, Hy)) @ self.Py
+        speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
+        if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps:
+            if math.isnan(self.yaw) or (self.misses > 0 and
+                                        abs(_wrap(ob.yaw + self.yaw_rate * lag - self.yaw)) > math.radians(30)):
+                # first heading, or the robot turned while it was not seen: restart the filter
+                self.yaw = _wrap(ob.yaw)
+                self.yaw_rate = 0.0
+                self.py = [math.radians(10) ** 2, 0.0, 1.0]
+            else:
+                sy = math.radians(4.0) ** 2
+                if math.isfinite(ob.speed_sigma) and speed > 0:
+                    sy += (ob.speed_sigma / speed) ** 2
+                self._yaw_measure(ob.yaw, lag, sy)
+        if math.isfinite(ob.shape_yaw) and not math.isnan(self.yaw):
+            period = 2.0 * math.pi / max(1, ob.shape_order)
+            pred = self.yaw - self.yaw_rate * lag
+            innov = (ob.shape_yaw - pred + period / 2.0) % period - period / 2.0
+            if abs(innov) < period / 3.0:
+                self._yaw_measure(pred + innov, lag, math.radians(self.cfg.shape_sigma_deg) ** 2)
+
+    def _yaw_measure(self, yaw_meas: float, lag: float, var: float) -> None:
+        """Kalman update with a yaw measured ``lag`` s before the filter time: H = [1, -lag]."""
+        a, b, c = self.py
+        ha = a - lag * b          # P H^T, first component
+        hb = b - lag * c          # P H^T, second component
+        s = ha - lag * hb + var   # H P H^T + R
+        k0, k1 = ha / s, hb / s
+        innov = _wrap(yaw_meas - (self.yaw - self.yaw_rate * lag))
+        self.yaw = _wrap(self.yaw + k0 * innov)
+        self.yaw_rate += k1 * innov
+        self.py = [a - k0 * ha, b - k0 * hb, c - k1 * hb]
 
     def report(self) -> TrackedRobot:
-        return TrackedRobot(track_id=self.id, x=float(self.x[0]), y=float(self.x[1]), t_us=self.t_us,
-                            vx=float(self.x[2]), vy=float(self.x[3]), yaw=self.yaw, state=self.state,
+        return TrackedRobot(track_id=self.id, x=self.ax.p, y=self.ay.p, t_us=self.t_us,
+                            vx=self.ax.v, vy=self.ay.v, yaw=self.yaw, state=self.state,
                             age=self.age, hits=self.hits, misses=self.misses, u=self.u, v=self.v,
                             n_events=self.n_events, robot=self.robot)
 
@@ -215,8 +260,7 @@ class FleetTracker:
         for tr in self.tracks:
             if tr.state == TENTATIVE:
                 continue
-            dt = max(0.0, (int(t_us) - tr.t_us) * 1e-6)
-            out.append(tr.x[:2] + tr.x[2:] * dt)
+            out.append(tr.predicted(t_us))
         return np.array(out, dtype=float).reshape(-1, 2)
 
     def update(self, observations: list[Observation], t_us: int) -> list[TrackedRobot]:
@@ -241,7 +285,7 @@ class FleetTracker:
                 gate = cfg.gate_m if tr.misses == 0 else min(cfg.gate_m + 0.5 * cfg.chassis_m * tr.misses,
                                                              1.5 * cfg.chassis_m)
                 for b, j in enumerate(obs):
-                    d = math.hypot(observations[j].x - tr.x[0], observations[j].y - tr.x[1])
+                    d = math.hypot(observations[j].x - tr.ax.p, observations[j].y - tr.ay.p)
                     cost[a, b] = d if d <= gate else 1e6
             rows, cols = linear_sum_assignment(cost)
             for r, c in zip(rows, cols):
@@ -264,7 +308,7 @@ class FleetTracker:
         cfg = self.config
         for j in idx:
             ob = observations[j]
-            near = any(math.hypot(ob.x - tr.x[0], ob.y - tr.x[1]) < cfg.chassis_m for tr in self.tracks)
+            near = any(math.hypot(ob.x - tr.ax.p, ob.y - tr.ay.p) < cfg.chassis_m for tr in self.tracks)
             if near:
                 continue
             self.tracks.append(_Track(self._next_id, ob, cfg))
@@ -283,7 +327,7 @@ class FleetTracker:
                     and (t_us - c.last_seen_us) * 1e-6 >= self.config.lost_s]
             if lost:
                 old = min(lost, key=lambda c: c.last_seen_us)
-                old.x, old.P, old.yaw, old.yaw_rate = tr.x.copy(), tr.P.copy(), tr.yaw, tr.yaw_rate
+                old.ax, old.ay, old.yaw, old.yaw_rate, old.py = tr.ax, tr.ay, tr.yaw, tr.yaw_rate, tr.py
                 old.state, old.misses, old.last_seen_us = CONFIRMED, 0, tr.last_seen_us
                 old.u, old.v, old.n_events = tr.u, tr.v, tr.n_events
             self.tracks.remove(tr)

@@ -30,6 +30,9 @@ class Observation:
         u, v: position in the sensor frame, px.
         n_events: events in the cluster.
         t_vel_us: time the velocity and the heading refer to (the cluster's mean event time), µs.
+        shape_yaw: orientation of the cluster's shape, rad, known modulo 2*pi/``shape_order``
+            (NaN when unknown), at ``t_vel_us``.
+        shape_order: rotational symmetry of the footprint (4: square, 2: rectangle).
     """
 
     x: float
@@ -44,6 +47,8 @@ class Observation:
     v: float = math.nan
     n_events: int = 0
     t_vel_us: int | None = None
+    shape_yaw: float = math.nan
+    shape_order: int = 4
 
 
 @dataclass

@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import csv
 import math
-from collections import deque
 from collections.abc import Iterable, Iterator
 from typing import IO
 
 import numpy as np
 
-from arena.events import EVENT_DTYPE
+from tracker.accumulate import PixelWindow
 from tracker.calibration import Calibration
 from tracker.detect import Detection, Detector, DetectorConfig, PaperConfig, PaperDetector
 from tracker.fleet import FleetConfig, FleetTracker
@@ -73,43 +72,36 @@ class Pipeline:
             self.tracker = IDTrack(sigma=PAPER_SIGMA_PX / ppm)
         else:
             self.tracker = FleetTracker(FleetConfig(chassis_m=chassis_m, fleet_size=fleet_size))
-        self._slices: deque[tuple[int, np.ndarray]] = deque()
+        self.pixels = PixelWindow(w, h, self.accumulation_us)
         self.last_t_us: int | None = None
         #: detections of the last window (sensor frame)
         self.detections_: list[Detection] = []
 
-    def window(self, t_end_us: int) -> np.ndarray:
+    def window(self) -> np.ndarray:
         """Events of the current window ``[t_end - t_a, t_end)``."""
-        lo = t_end_us - self.accumulation_us
-        parts = [ev for _, ev in self._slices]
-        if not parts:
-            return np.empty(0, dtype=EVENT_DTYPE)
-        first = parts[0]
-        if first.size and first["t"][0] < lo:
-            parts[0] = first[first["t"] >= lo]
-        return np.concatenate(parts) if len(parts) > 1 else parts[0]
+        return self.pixels.events()
 
     def push(self, events: np.ndarray, t_end_us: int) -> list[TrackedRobot]:
         """Add one slice (events sorted by t, all ``< t_end_us``) and update the tracks.
 
         Returns the tracks at ``t_end_us`` (arena frame). Raises ValueError for a slice
-        that ends before the previous one (the caller counts and skips it).
+        that does not end after the previous one or holds pixels outside the sensor (the
+        caller counts and skips it; the pipeline's state is unchanged).
         """
         t_end_us = int(t_end_us)
         if self.last_t_us is not None and t_end_us <= self.last_t_us:
             raise ValueError(f"slice ending at {t_end_us} µs is not after the previous one ({self.last_t_us} µs)")
+        self.pixels.push(events, t_end_us)
         self.last_t_us = t_end_us
-        self._slices.append((t_end_us, events))
-        lo = t_end_us - self.accumulation_us
-        while self._slices and self._slices[0][0] <= lo:
-            self._slices.popleft()
-        window = self.window(t_end_us)
         hints = None
         if isinstance(self.tracker, FleetTracker):
             pred = self.tracker.predictions(t_end_us)
             if len(pred) >= 2:
                 hints = self.calibration.to_pixel(pred)
-        dets = self.detector.detect(window, t_end_us, hints=hints)
+        if isinstance(self.detector, Detector):
+            dets = self.detector.detect_window(self.pixels, t_end_us, hints=hints)
+        else:
+            dets = self.detector.detect(self.pixels.events(), t_end_us)
         self.detections_ = dets
         obs = [self._observation(d) for d in dets]
         return self.tracker.update(obs, t_end_us)
@@ -124,9 +116,12 @@ class Pipeline:
                 sig = d.speed_sigma / cal.px_per_m(d.u, d.v)
         if math.isfinite(d.heading):
             yaw = cal.heading_to_arena(d.u, d.v, d.heading)
+        shape = math.nan
+        if math.isfinite(d.shape_axis):
+            shape = cal.heading_to_arena(d.u, d.v, d.shape_axis)
         return Observation(x=float(x), y=float(y), t_us=d.t_us, vx=vx, vy=vy, speed_sigma=sig, yaw=yaw,
                            yaw_source=d.heading_source, u=d.u, v=d.v, n_events=d.n_events,
-                           t_vel_us=d.t_vel_us)
+                           t_vel_us=d.t_vel_us, shape_yaw=shape, shape_order=d.shape_order)
 
 
 def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | None = None

@@ -1,0 +1,154 @@
+"""Per-pixel statistics of a sliding event window, updated slice by slice.
+
+The window ``[t_end - t_a, t_end)`` changes by one slice at a time: :class:`PixelWindow`
+adds the new slice's events and removes the expired slice's, so each update costs
+O(events of two slices), not O(events of the window). For every active pixel (sensor
+frame, px) it keeps the event count, the ON-event count and the sums of event times
+(s, relative to an internal origin) and of their squares: enough for the detector's
+centroids and straight-motion fits, which are sums over pixels.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from numba import njit
+
+__all__ = ["PixelWindow"]
+
+#: Re-base the time origin after this long, s (keeps t^2 sums precise).
+_REBASE_S = 20.0
+
+
+@njit(cache=True)
+def _apply(x, y, p, t, sign, t_ref, width, count, on, st, st2, slot, active, n_active):
+    """Add (sign=+1) or remove (sign=-1) events; maintains the list of active pixels."""
+    for i in range(x.shape[0]):
+        k = np.int64(y[i]) * width + np.int64(x[i])
+        ti = (t[i] - t_ref) * 1e-6
+        if sign > 0:
+            if count[k] == 0:
+                slot[k] = n_active
+                active[n_active] = k
+                n_active += 1
+            count[k] += 1
+            if p[i]:
+                on[k] += 1
+            st[k] += ti
+            st2[k] += ti * ti
+        else:
+            count[k] -= 1
+            if p[i]:
+                on[k] -= 1
+            st[k] -= ti
+            st2[k] -= ti * ti
+            if count[k] == 0:
+                st[k] = 0.0
+                st2[k] = 0.0
+                j = slot[k]
+                last = active[n_active - 1]
+                active[j] = last
+                slot[last] = j
+                n_active -= 1
+    return n_active
+
+
+@njit(cache=True)
+def _gather(active, n_active, width, count, on, st, st2):
+    u = np.empty(n_active, dtype=np.int64)
+    v = np.empty(n_active, dtype=np.int64)
+    c = np.empty(n_active, dtype=np.int64)
+    o = np.empty(n_active, dtype=np.int64)
+    s1 = np.empty(n_active)
+    s2 = np.empty(n_active)
+    for j in range(n_active):
+        k = active[j]
+        u[j] = k % width
+        v[j] = k // width
+        c[j] = count[k]
+        o[j] = on[k]
+        s1[j] = st[k]
+        s2[j] = st2[k]
+    return u, v, c, o, s1, s2
+
+
+class PixelWindow:
+    """Sliding window of event slices with per-pixel statistics.
+
+    Args:
+        width, height: sensor size, px.
+        accumulation_us: t_a, µs.
+    """
+
+    def __init__(self, width: int, height: int, accumulation_us: int) -> None:
+        if width <= 0 or height <= 0:
+            raise ValueError(f"sensor size must be positive, got {width}x{height}")
+        self.width, self.height = int(width), int(height)
+        self.accumulation_us = int(accumulation_us)
+        n = self.width * self.height
+        self._count = np.zeros(n, dtype=np.int32)
+        self._on = np.zeros(n, dtype=np.int32)
+        self._st = np.zeros(n, dtype=np.float64)
+        self._st2 = np.zeros(n, dtype=np.float64)
+        self._slot = np.zeros(n, dtype=np.int64)
+        self._active = np.zeros(n, dtype=np.int64)
+        self._n_active = 0
+        self._slices: deque[tuple[int, np.ndarray]] = deque()
+        self.t_ref_us: int | None = None
+        self.n_events = 0
+
+    def _check(self, ev: np.ndarray) -> None:
+        if ev.size and (int(ev["x"].max()) >= self.width or int(ev["y"].max()) >= self.height):
+            raise ValueError(f"event at ({int(ev['x'].max())}, {int(ev['y'].max())}) px lies outside "
+                             f"the {self.width}x{self.height} sensor")
+
+    def _run(self, ev: np.ndarray, sign: int) -> None:
+        if ev.size == 0:
+            return
+        self._n_active = _apply(ev["x"], ev["y"], ev["p"], ev["t"], sign, self.t_ref_us, self.width,
+                                self._count, self._on, self._st, self._st2, self._slot, self._active,
+                                self._n_active)
+        self.n_events += sign * ev.size
+
+    def push(self, events: np.ndarray, t_end_us: int) -> None:
+        """Add one slice (events with t < t_end_us) and expire what is older than t_end - t_a."""
+        self._check(events)
+        if self.t_ref_us is None:
+            self.t_ref_us = int(events["t"][0]) if events.size else int(t_end_us)
+        elif (t_end_us - self.t_ref_us) * 1e-6 > _REBASE_S:
+            self._rebase(int(t_end_us) - self.accumulation_us)
+        lo = int(t_end_us) - self.accumulation_us
+        # expire whole slices, then the old part of the oldest one
+        while self._slices and self._slices[0][0] <= lo:
+            _, old = self._slices.popleft()
+            self._run(old, -1)
+        if self._slices:
+            t0, first = self._slices[0]
+            if first.size and first["t"][0] < lo:
+                cut = int(np.searchsorted(first["t"], lo, side="left"))
+                self._run(first[:cut], -1)
+                self._slices[0] = (t0, first[cut:])
+        keep = events[events["t"] >= lo] if events.size and events["t"][0] < lo else events
+        self._run(keep, +1)
+        self._slices.append((int(t_end_us), keep))
+
+    def _rebase(self, t_new: int) -> None:
+        slices = list(self._slices)
+        for _, ev in slices:
+            self._run(ev, -1)
+        self.t_ref_us = t_new
+        for _, ev in slices:
+            self._run(ev, +1)
+
+    def events(self) -> np.ndarray:
+        """The window's events, concatenated (sorted by t when the slices were)."""
+        parts = [ev for _, ev in self._slices]
+        if not parts:
+            from arena.events import empty_events
+            return empty_events(0)
+        return np.concatenate(parts)
+
+    def pixels(self):
+        """Active pixels: (u, v, count, on_count, sum_t, sum_t2) arrays; times in s from ``t_ref_us``."""
+        return _gather(self._active, self._n_active, self.width, self._count, self._on, self._st, self._st2)
