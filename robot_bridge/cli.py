@@ -178,6 +178,8 @@ def run_service(args) -> int:
 
 
 def _send(args, verb: str, payload: bytes) -> int:
+    import zenoh
+
     from arena.keys import InvalidKey, cmd_key
     from arena.messages import CommandReply, MessageError
 
@@ -192,7 +194,9 @@ def _send(args, verb: str, payload: bytes) -> int:
     n = 0
     try:
         with open_session(args) as session:
-            for r in session.get(key, payload=payload, timeout=args.timeout):
+            # no consolidation: 'all' gets one reply per robot on the same key
+            for r in session.get(key, payload=payload, timeout=args.timeout,
+                                 consolidation=zenoh.ConsolidationMode.NONE):
                 if r.ok is None:
                     print(f"arena bridge {verb}: error reply: {r.err.payload.to_string()}", file=sys.stderr)
                     ok = False

@@ -175,7 +175,8 @@ class RobotHandle:
                                f"leaves the arena (0..{sx}, 0..{sy} m, margin {m} m)")
 
     def stop(self, reason: str = "stopped by command") -> dict:
-        """Stop the mission (if any) and the motors."""
+        """Stop the motors at once, then end the mission (if any)."""
+        self._stop_motors()
         with self.lock:
             had = self.mission_id
             self._end_mission(reason)
@@ -183,12 +184,16 @@ class RobotHandle:
         return {"stopped_mission": had}
 
     def emergency_stop(self) -> dict:
-        """Stop now and latch: no mission starts until :meth:`clear`."""
+        """Stop now and latch: no mission starts until :meth:`clear`.
+
+        The latch is set and STOP sent before taking the lock (a control step in progress
+        cannot delay it); STOP is sent again once the mission is ended."""
+        self.estop = True
+        sent = self._stop_motors(self.opt.estop_repeats)
         with self.lock:
-            self.estop = True
             had = self.mission_id
             self._end_mission("e-stop")
-        sent = self._stop_motors(self.opt.estop_repeats)
+        sent = self._stop_motors(self.opt.estop_repeats) or sent
         return {"stopped_mission": had, "latched": True, "stop_sent": sent}
 
     def clear(self) -> dict:
@@ -211,11 +216,12 @@ class RobotHandle:
 
     # ------------------------------------------------------------------ internals
     def _stop_motors(self, repeat: int = 1) -> bool:
+        """Send STOP; False when the link is down (the robot's 300 ms watchdog stops it)."""
         try:
             self.link.stop_motors(repeat)
             return True
         except LinkDown:
-            return False   # the robot's own watchdog stops it within 300 ms
+            return False
 
     def _end_mission(self, status: str, results: dict | None = None) -> None:
         """Close the running mission (lock held)."""
@@ -309,6 +315,7 @@ class RobotHandle:
             return "waiting"
         if self.estop:
             self._end_mission("e-stop")
+            self._stop_motors(self.opt.estop_repeats)
             return "e-stop"
         if 0 < tel.battery_mv < self.opt.low_battery_mv:
             self.on_error(f"robot {self.name}: battery {tel.battery_mv} mV < {self.opt.low_battery_mv} mV: mission stopped")
@@ -459,10 +466,16 @@ class Bridge:
         parts = str(query.key_expr).split("/")
         robot, verb = parts[2], parts[3]
         targets = list(self.handles) if robot == "all" else [robot]
+        if verb in ("stop", "estop") and len(targets) > 1:
+            for name in targets:   # every robot stops before any mission log is closed
+                h = self.handles[name]
+                if verb == "estop":
+                    h.estop = True
+                h._stop_motors(self.opt.estop_repeats if verb == "estop" else 1)
         for name in targets:
             reply = self.execute(name, verb, query.payload.to_bytes() if query.payload is not None else b"")
             try:
-                query.reply(f"arena/cmd/{name}/{verb}", reply.encode())
+                query.reply(query.key_expr, reply.encode())
             except Exception as exc:  # noqa: BLE001 - the querier may have gone
                 self._error(f"reply to {verb} for {name} failed: {exc}")
 

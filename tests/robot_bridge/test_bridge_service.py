@@ -1,0 +1,183 @@
+"""The bridge over real Zenoh (loopback): commands and their errors, e-stop latency and latch,
+geofence, telemetry published for every sample, closed loop on tracks, and the CLI client."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+import zenoh
+from bridge_testkit import running_world, wait_for
+
+from arena.messages import Command, CommandReply, MissionCommand, Telemetry, Track, decode
+from arena.session import ZenohSettings, open_session
+from robot_bridge.logs import read_log
+from robot_bridge.odometry import WheelGeometry
+from robot_bridge.service import Bridge, BridgeOptions, RobotSetup
+from simulator.robot_emulator import RobotEmulatorServer
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def lab(tmp_path):
+    """Two emulated robots, a bridge on a Zenoh peer session listening on loopback."""
+    port = free_port()
+    starts = [(0.9, 0.6, 1.5708), (0.5, 1.2, 0.0)]
+    with running_world(2, starts=starts) as world, RobotEmulatorServer(world, 0) as e1, \
+            RobotEmulatorServer(world, 1) as e2, \
+            open_session(ZenohSettings(mode="peer", connect=[], listen=[f"tcp/127.0.0.1:{port}"])) as session:
+        telemetry = []
+        session.declare_subscriber("arena/telemetry/*", lambda s: telemetry.append(decode(s.payload.to_bytes())))
+        robots = [RobotSetup("r1", e1.url, WheelGeometry(track_width_m=0.11)),
+                  RobotSetup("r2", e2.url, WheelGeometry(track_width_m=0.11))]
+        with Bridge(session, robots, BridgeOptions(log_dir=str(tmp_path))) as bridge:
+            for h in bridge.handles.values():
+                assert h.link.wait_connected(3), h.link.last_error
+            yield {"world": world, "emus": (e1, e2), "session": session, "bridge": bridge,
+                   "telemetry": telemetry, "endpoint": f"tcp/127.0.0.1:{port}", "dir": tmp_path}
+
+
+def ask(session, robot, verb, msg=None) -> list[CommandReply]:
+    payload = msg.encode() if msg is not None else b""
+    out = []
+    for r in session.get(f"arena/cmd/{robot}/{verb}", payload=payload, timeout=3.0,
+                         consolidation=zenoh.ConsolidationMode.NONE):
+        assert r.ok is not None
+        out.append(CommandReply.decode(r.ok.payload.to_bytes()))
+    return sorted(out, key=lambda r: r.robot)
+
+
+def circle(**kw):
+    return MissionCommand(mission="circle", params={"radius_m": 0.2, **kw.pop("params", {})}, power=0.5, **kw)
+
+
+def test_mission_ack_busy_bad_parameter_and_telemetry(lab):
+    s, world = lab["session"], lab["world"]
+    (rep,) = ask(s, "r1", "mission", circle())
+    assert rep.ok and rep.detail["phases"] == 1 and rep.detail["speed_mps"] == pytest.approx(0.23)
+    assert wait_for(lambda: world.power(0) != (0, 0), 1.0)
+    (busy,) = ask(s, "r1", "mission", circle())
+    assert not busy.ok and busy.error.startswith("busy: r1 runs mission")
+    (bad,) = ask(s, "r2", "mission", MissionCommand(mission="circle", params={"radius_m": -1}))
+    assert not bad.ok and "bad parameter" in bad.error and "radius_m" in bad.error
+    (closed,) = ask(s, "r2", "mission", circle(control="closed"))
+    assert not closed.ok and "needs fresh tracks" in closed.error
+    (led,) = ask(s, "r2", "led", Command(verb="led", params={"rgb": [0, 255, 0]}))
+    assert led.ok and wait_for(lambda: lab["emus"][1].led == (0, 255, 0), 1.0)
+    (bad_led,) = ask(s, "r2", "led", Command(verb="led", params={"rgb": [0, 999, 0]}))
+    assert not bad_led.ok and "bad parameter" in bad_led.error
+    h = lab["bridge"].handles["r1"]
+    assert wait_for(lambda: h.runner is None, 12.0), h.runner and h.runner.phase
+    assert h.last_result["status"] == "finished"
+    manifest, rows = read_log(lab["dir"], "r1", rep.detail["mission_id"])
+    samples = [r for r in rows if r["event"] == "sample"]
+    # every logged sample was also published on arena/telemetry/r1, same seq
+    published = {t.seq for t in lab["telemetry"] if isinstance(t, Telemetry) and t.robot == "r1"}
+    assert {int(r["seq"]) for r in samples} <= published
+    assert manifest["link"]["missing"] == 0 and manifest["path_error_odometry"]["mean_m"] < 0.2
+    assert world.power(0) == (0, 0)
+
+
+def test_estop_stops_within_100ms_and_latches(lab):
+    s, world = lab["session"], lab["world"]
+    assert all(r.ok for r in ask(s, "all", "mission", circle(params={"laps": 3})))
+    assert wait_for(lambda: world.power(0) != (0, 0) and world.power(1) != (0, 0), 1.0)
+    time.sleep(0.3)
+    t0 = time.monotonic()
+    replies = []
+    th = threading.Thread(target=lambda: replies.extend(ask(s, "all", "estop")))
+    th.start()
+    assert wait_for(lambda: world.power(0) == (0, 0) and world.power(1) == (0, 0), 1.0, step=0.001)
+    latency = time.monotonic() - t0
+    th.join()
+    assert latency < 0.1, f"e-stop took {latency * 1000:.0f} ms"
+    assert [r.robot for r in replies] == ["r1", "r2"] and all(r.ok and r.detail["latched"] for r in replies)
+    (refused,) = ask(s, "r1", "mission", circle())
+    assert not refused.ok and refused.error.startswith("e-stop latched on r1")
+    time.sleep(0.4)
+    assert world.power(0) == (0, 0)        # nothing restarted it
+    assert ask(s, "r1", "clear")[0].ok
+    assert ask(s, "r1", "mission", circle())[0].ok
+
+
+def test_link_down_is_a_clear_error(lab):
+    lab["emus"][1].stop()
+    h = lab["bridge"].handles["r2"]
+    assert wait_for(lambda: not h.link.connected, 2.0)
+    (rep,) = ask(lab["session"], "r2", "mission", circle())
+    assert not rep.ok and rep.error.startswith("link down: r2")
+
+
+def publish_truth_tracks(session, world, stop, delay_s=0.05):
+    """Stand-in for the tracker: the true pose of r1, stamped as seen ``delay_s`` ago."""
+    pub = session.declare_publisher("arena/robots/1")
+    history = []
+    while not stop.is_set():
+        now = time.time_ns()
+        history.append((now, world.pose(0)))
+        while len(history) > 1 and history[1][0] <= now - delay_s * 1e9:
+            history.pop(0)
+        t_pose, (x, y, yaw) = history[0]
+        # edge published the window at t_pose (stamp == window end)
+        pub.put(Track(track_id=1, robot="r1", stamp_us=1, x=x, y=y, yaw=yaw, window_end_us=1,
+                      edge_publish_ns=t_pose).encode())
+        stop.wait(0.02)
+
+
+def test_closed_loop_on_tracks_and_geofence(lab):
+    s, world = lab["session"], lab["world"]
+    stop = threading.Event()
+    th = threading.Thread(target=publish_truth_tracks, args=(s, world, stop), daemon=True)
+    th.start()
+    try:
+        h = lab["bridge"].handles["r1"]
+        assert wait_for(lambda: h.estimator.source(time.time_ns() / 1e9) == "track", 2.0)
+        (rep,) = ask(s, "r1", "mission", MissionCommand(mission="circle", params={"radius_m": 0.15},
+                                                        power=1.0, control="closed"))
+        assert rep.ok, rep.error
+        assert rep.detail["start_pose"][:2] == pytest.approx(world.pose(0)[:2], abs=0.02)
+        assert wait_for(lambda: h.runner is None, 10.0)
+        res = h.last_result
+        assert res["status"] == "finished"
+        assert res["path_error_tracks"]["mean_m"] < 0.015 and res["path_error_tracks"]["coverage_m"] < 0.03
+        # a mission that would leave the arena is refused up front
+        (out,) = ask(s, "r1", "mission", MissionCommand(mission="square", params={"side_m": 1.5}, power=0.5))
+        assert not out.ok and "leaves the arena" in out.error
+    finally:
+        stop.set()
+        th.join()
+    # geofence: a track at the edge stops a running mission
+    assert ask(s, "r2", "mission", circle())[0].ok
+    assert wait_for(lambda: world.power(1) != (0, 0), 1.0)
+    s.put("arena/robots/9", Track(track_id=9, robot="r2", x=0.01, y=1.2, yaw=0.0).encode())
+    h2 = lab["bridge"].handles["r2"]
+    assert wait_for(lambda: h2.runner is None and world.power(1) == (0, 0), 1.0)
+    assert h2.last_result["status"].startswith("aborted: geofence")
+
+
+def test_cli_client(lab):
+    base = [sys.executable, "-m", "robot_bridge"]
+    z = ["-m", "peer", "-e", lab["endpoint"], "--timeout", "3"]
+    r = subprocess.run(base + ["mission", "r2", "square", "--side", "0.3", "--power", "50", *z],
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    assert "r2: mission ok" in r.stdout and "mission_id=" in r.stdout
+    r = subprocess.run(base + ["stop", "all", *z], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and "r1: stop ok" in r.stdout and "r2: stop ok" in r.stdout
+    r = subprocess.run(base + ["stop", "nobody", *z[:4], "--timeout", "1"], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 1 and "no bridge answered for robot 'nobody'" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run(base + ["mission", "r1", "circle", "--power", "150", *z], capture_output=True, text=True,
+                       timeout=30)
+    assert r.returncode == 2 and "--power is a percentage" in r.stderr
+    r = subprocess.run(base + ["mission", "r1", "circle", "--radius", "-1", *z], capture_output=True, text=True,
+                       timeout=30)
+    assert r.returncode == 1 and "REFUSED: bad parameter" in r.stdout
