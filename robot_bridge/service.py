@@ -8,7 +8,8 @@ For every robot (from the lab config or ``--robot NAME=URL``) the bridge keeps a
 Commands are Zenoh queryables ``arena/cmd/<robot>/{mission,stop,estop,clear,led}`` (and
 ``arena/cmd/all/...``) answered with :class:`arena.messages.CommandReply`: ``ok`` or an
 error starting with one of ``unknown robot``, ``busy``, ``bad parameter``, ``link down``,
-``e-stop latched``. Tracks from ``arena/robots/*`` feed closed-loop control and the
+``e-stop latched``, ``low battery``. Robots no bridge serves get no reply at all (several
+bridges may share a Zenoh network), which the CLI reports as such. Tracks from ``arena/robots/*`` feed closed-loop control and the
 geofence.
 
 Safety: motors are stopped on exit (also Ctrl-C/SIGTERM), when a mission raises, when a
@@ -135,6 +136,9 @@ class RobotHandle:
             if self.runner is not None:
                 raise CommandError(f"busy: {self.name} runs mission {self.mission_id} ({self.runner.phase}); "
                                    "send 'stop' first")
+            if 0 < self.battery_mv < self.opt.low_battery_mv:
+                raise CommandError(f"low battery: {self.name} at {self.battery_mv} mV "
+                                   f"(< {self.opt.low_battery_mv} mV): charge it first")
             now = time.time_ns() / 1e9
             fresh = self.estimator.source(now) == "track"
             if cmd.control == "closed" and not fresh:
@@ -159,8 +163,8 @@ class RobotHandle:
                 manifest={"pattern": cmd.mission, "params": dict(cmd.params), "control": cmd.control,
                           "speed_mps": speed, "start_pose": list(start), "start_ns": cmd.start_ns,
                           "operator": cmd.operator, "url": self.link.url,
-                          "geometry": vars(self.geometry), "pose_source_at_start": "track" if fresh else "odometry",
-                          "commanded_path": np.round(mission.path(0.02), 4).tolist()})
+                          "geometry": vars(self.geometry),
+                          "pose_source_at_start": "track" if fresh else "odometry"})
             log.info("robot %s: mission %s started (%s, %.2f m/s)", self.name, mission_id, cmd.control, speed)
             return {"mission_id": mission_id, "speed_mps": speed, "length_m": round(mission.length_m, 4),
                     "phases": len(mission.segments), "start_pose": [round(v, 4) for v in start]}

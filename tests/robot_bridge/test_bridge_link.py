@@ -135,3 +135,22 @@ def test_five_percent_corruption_detected_and_never_logged(tmp_path):
     s = h.link.stats
     assert s.crc_errors + s.framing_errors >= emu.stats.frames_corrupted > 5
     assert s.missing == emu.stats.frames_corrupted
+
+
+def test_low_battery_refuses_and_stops_missions(tmp_path):
+    opts = BridgeOptions(log_dir=str(tmp_path))
+    with running_world() as world, RobotEmulatorServer(world, 0) as emu:
+        h = RobotHandle(RobotSetup("r1", emu.url), opts)
+        h.start()
+        try:
+            assert h.link.wait_connected(3) and wait_for(lambda: h.battery_mv > 0, 1.0)
+            mid = start(h)["mission_id"]
+            assert wait_for(lambda: world.power(0) != (0, 0), 1.0)
+            opts.low_battery_mv = h.battery_mv + 500     # the battery is now "low"
+            assert wait_for(lambda: world.power(0) == (0, 0) and h.runner is None, 1.0)
+            with pytest.raises(Exception, match=r"low battery: r1 at \d+ mV"):
+                start(h)
+        finally:
+            h.close()
+    manifest, _ = read_log(tmp_path, "r1", mid)
+    assert manifest["status"].startswith("aborted: low battery")

@@ -181,3 +181,29 @@ def test_cli_client(lab):
     r = subprocess.run(base + ["mission", "r1", "circle", "--radius", "-1", *z], capture_output=True, text=True,
                        timeout=30)
     assert r.returncode == 1 and "REFUSED: bad parameter" in r.stdout
+
+
+def test_losing_the_zenoh_router_stops_the_robots(tmp_path):
+    port = free_port()
+    router = subprocess.Popen([sys.executable, "-m", "arena", "router", "-l", f"tcp/127.0.0.1:{port}"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert "listening" in router.stdout.readline()
+        with running_world() as world, RobotEmulatorServer(world, 0) as emu, \
+                open_session(ZenohSettings(mode="client", connect=[f"tcp/127.0.0.1:{port}"])) as session:
+            with Bridge(session, [RobotSetup("r1", emu.url)], BridgeOptions(log_dir=str(tmp_path)),
+                        watch_router=True) as bridge:
+                h = bridge.handles["r1"]
+                assert h.link.wait_connected(3)
+                assert bridge.execute("r1", "mission", circle(params={"laps": 5}).encode()).ok
+                assert wait_for(lambda: world.power(0) != (0, 0), 1.0)
+                time.sleep(0.5)
+                assert h.runner is not None            # a healthy router does not stop anything
+                router.kill()
+                router.wait(5)
+                assert wait_for(lambda: h.runner is None and world.power(0) == (0, 0), 3.0)
+                assert h.last_result["status"] == "aborted: Zenoh router lost"
+    finally:
+        if router.poll() is None:
+            router.kill()
+            router.wait()
