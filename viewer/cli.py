@@ -1,0 +1,122 @@
+"""``arena view``: the live web viewer."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import threading
+from pathlib import Path
+
+from arena.config import ConfigError
+from arena.keys import InvalidKey, validate_name
+from arena.service import Service, stop_on_signals
+from arena.session import SessionError, add_zenoh_arguments, load_lab_from_args, open_session
+
+log = logging.getLogger("arena.viewer")
+
+
+def _formatter(prog: str) -> argparse.HelpFormatter:
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+def register(sub) -> None:
+    """Add ``arena view`` to the ``arena`` subparsers."""
+    p = sub.add_parser(
+        "view", help="live web view: events, tracks, ground truth, telemetry, services",
+        formatter_class=_formatter,
+        description="Serve one web page showing the arena live from Zenoh: the accumulated event image\n"
+                    "(ON black, OFF blue, no event white), each track's box, id, heading arrow and trail\n"
+                    "drawn on it and on an arena plot in metres, the ground truth, telemetry sparklines\n"
+                    "(wheel speeds, gyro z, battery) and every service's status and liveliness.\n"
+                    "Works the same for a live lab and for `arena replay`. Loopback only by default.",
+        epilog="Examples:\n"
+               "  arena view                                  # then open http://127.0.0.1:8080/\n"
+               "  arena view --lab lab.toml --camera cam0     # draw tracks with the lab's calibration\n"
+               "  arena view --port 0                         # any free port (printed)\n"
+               "  arena view --host 0.0.0.0                   # reachable from other hosts (no auth!)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 = any free port)")
+    p.add_argument("--camera", default=None,
+                   help="camera whose events are shown (default: the lab's first camera, else the first seen)")
+    p.add_argument("--accumulate-ms", type=float, default=100.0,
+                   help="event image shows this much sensor time (default 100 ms)")
+    p.add_argument("--rate", type=float, default=10.0, help="updates per second sent to the page (default 10)")
+    p.add_argument("--name", default=None, help="service name in arena status (default view-<pid>)")
+    add_zenoh_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _lab_view(args):
+    """(camera, homography arena->px, arena size m, robot size m) from the lab config, if any."""
+    from viewer.state import ViewerConfigError, arena_to_pixel_homography
+
+    lab = load_lab_from_args(args)
+    if lab is None:
+        return args.camera, None, (1.83, 1.83), (0.10, 0.10)
+    cam = lab.camera(args.camera) if lab.cameras else None
+    calib = cam.calibration if cam is not None else None
+    if cam is not None and calib is None and cam.calibration_file:
+        try:
+            calib = json.loads(Path(cam.calibration_file).read_text())
+        except (OSError, ValueError) as exc:
+            raise ViewerConfigError(f"camera {cam.name}: cannot read calibration {cam.calibration_file}: {exc}") from None
+    H = arena_to_pixel_homography(calib) if calib else None
+    size = (max(r.length_m for r in lab.robots), max(r.width_m for r in lab.robots)) if lab.robots else (0.1, 0.1)
+    return (cam.name if cam else args.camera), H, lab.arena.size_m, size
+
+
+def run(args) -> int:
+    """Run ``arena view``; returns the exit code."""
+    from viewer.server import ViewerServer
+    from viewer.service import subscribe
+    from viewer.state import ViewerConfigError, ViewerState
+
+    try:
+        name = validate_name(args.name or f"view-{os.getpid()}", "--name")
+        if args.camera:
+            validate_name(args.camera, "--camera")
+        camera, H, arena_size, robot_size = _lab_view(args)
+    except (InvalidKey, ConfigError, ViewerConfigError) as exc:
+        print(f"arena view: {exc}", file=sys.stderr)
+        return 2
+    if not 0 <= args.port <= 65535:
+        print(f"arena view: --port {args.port} is not a TCP port", file=sys.stderr)
+        return 2
+    if args.accumulate_ms <= 0 or args.rate <= 0:
+        print("arena view: --accumulate-ms and --rate must be > 0", file=sys.stderr)
+        return 2
+    state = ViewerState(camera=camera, accumulate_us=int(args.accumulate_ms * 1000), H_arena_to_px=H,
+                        arena_size_m=arena_size, robot_size_m=robot_size)
+    try:
+        server = ViewerServer(state, args.host, args.port, period_s=1.0 / args.rate)
+    except OSError as exc:
+        print(f"arena view: cannot serve on {args.host}:{args.port}: {exc.strerror or exc}"
+              " (is another viewer running? try --port 0)", file=sys.stderr)
+        return 2
+    stop = stop_on_signals()
+    thread = threading.Thread(target=server.serve_forever, name="http", daemon=True)
+    try:
+        with open_session(args) as session, Service(session, "viewer", name) as svc:
+            subs = subscribe(session, state, camera)
+            svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", len(state.snapshot()["tracks"]))))
+            thread.start()
+            print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
+            try:
+                stop.wait()
+            except KeyboardInterrupt:
+                pass
+            finally:
+                server.shutdown()
+                for s in subs:
+                    s.undeclare()
+    except KeyboardInterrupt:
+        pass
+    except SessionError as exc:
+        print(f"arena view: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        server.server_close()
+    return 0

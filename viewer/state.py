@@ -1,0 +1,287 @@
+"""The viewer's model: everything the page shows, updated from decoded arena messages.
+
+Thread-safe (one lock): Zenoh callbacks call the ``on_*`` methods, the HTTP server calls
+:meth:`ViewerState.snapshot` and :meth:`ViewerState.render_frame`. Frames: arena ``(x, y)`` m,
+yaw counter-clockwise from +x; sensor ``(u, v)`` px (u column right, v row down).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from arena import codec
+from arena.messages import EventWindow, GroundTruthPose, Status, Telemetry, Track
+
+#: Display colours (RGB) as in the paper: ON (positive) black, OFF (negative) blue, no event white.
+ON_RGB = (0, 0, 0)
+OFF_RGB = (0, 0, 255)
+BACKGROUND_RGB = (255, 255, 255)
+
+
+class ViewerConfigError(ValueError):
+    """A calibration the viewer cannot use (the message says what is wrong)."""
+
+
+def arena_to_pixel_homography(calibration: dict) -> np.ndarray:
+    """3x3 homography arena m -> sensor px fitted to a calibration dict
+    (``{"image_size": [w, h], "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}``, >= 4 points)."""
+    try:
+        pts = calibration["points"]
+        px = np.array([p["pixel"] for p in pts], dtype=np.float64).reshape(-1, 2)
+        am = np.array([p["arena_m"] for p in pts], dtype=np.float64).reshape(-1, 2)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ViewerConfigError(f"calibration needs points with 'pixel' and 'arena_m' pairs ({exc})") from None
+    if len(px) < 4:
+        raise ViewerConfigError(f"calibration needs at least 4 points, got {len(px)}")
+    H, _ = cv2.findHomography(am, px, 0)
+    if H is None or not np.isfinite(H).all():
+        raise ViewerConfigError("calibration points are degenerate (collinear or repeated)")
+    return H
+
+
+def project(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Apply homography ``H`` to (n, 2) points."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    h = np.c_[xy, np.ones(len(xy))] @ H.T
+    return h[:, :2] / h[:, 2:3]
+
+
+@dataclass
+class _TrackView:
+    msg: Track
+    seen: float  # monotonic s
+    trail_m: deque = field(default_factory=lambda: deque(maxlen=300))
+    trail_px: deque = field(default_factory=lambda: deque(maxlen=300))
+
+
+@dataclass
+class _Window:
+    t_end_us: int
+    msg: EventWindow
+    events: np.ndarray | None = None
+
+
+def _r(v: float | None, nd: int = 4) -> float | None:
+    return None if v is None else round(float(v), nd)
+
+
+class ViewerState:
+    """What the page shows.
+
+    ``camera``: the camera whose events are drawn (None: the first one seen). ``accumulate_us``:
+    the event image shows the windows whose end lies in the last ``accumulate_us`` µs of sensor
+    time. ``H_arena_to_px``: homography used to draw tracks that carry no ``u_px``/``v_px``.
+    ``robot_size_m``: (length, width) of the boxes drawn around tracks.
+    """
+
+    def __init__(self, camera: str | None = None, accumulate_us: int = 100_000,
+                 H_arena_to_px: np.ndarray | None = None, arena_size_m: tuple[float, float] = (1.83, 1.83),
+                 robot_size_m: tuple[float, float] = (0.10, 0.10), telemetry_len: int = 200,
+                 track_timeout_s: float = 3.0, status_timeout_s: float = 5.0):
+        self.camera = camera
+        self.accumulate_us = int(accumulate_us)
+        self.H = H_arena_to_px
+        self.arena_size_m = tuple(arena_size_m)
+        self.robot_size_m = tuple(robot_size_m)
+        self.telemetry_len = telemetry_len
+        self.track_timeout_s = track_timeout_s
+        self.status_timeout_s = status_timeout_s
+        self._lock = threading.Lock()
+        self._windows: deque[_Window] = deque()
+        self._size: tuple[int, int] | None = None
+        self._cam_info: dict = {}
+        self._tracks: dict[str, _TrackView] = {}
+        self._gt: dict[str, tuple[GroundTruthPose, float]] = {}
+        self._telemetry: dict[str, dict[str, deque]] = {}
+        self._status: dict[tuple[str, str], tuple[Status, float]] = {}
+        self._alive: set[tuple[str, str]] = set()
+        self.counts = {"windows": 0, "tracks": 0, "groundtruth": 0, "telemetry": 0, "status": 0, "bad": 0}
+        self.frame_no = 0
+
+    # -- inputs -------------------------------------------------------------------------------
+    def on_window(self, msg: EventWindow) -> None:
+        """Add an event window (ignored unless it is from the viewed camera)."""
+        with self._lock:
+            if self.camera is None:
+                self.camera = msg.camera
+            if msg.camera != self.camera:
+                return
+            self.counts["windows"] += 1
+            if self._windows and msg.t_end_us < self._windows[-1].t_end_us - self.accumulate_us:
+                self._windows.clear()  # sensor time went back: a restarted camera or a looping replay
+            self._windows.append(_Window(msg.t_end_us, msg))
+            self._size = (msg.width, msg.height)
+            self._cam_info = {"camera": msg.camera, "seq": msg.seq, "t_end_us": msg.t_end_us,
+                              "dropped": msg.dropped, "codec": msg.codec}
+            oldest = msg.t_end_us - self.accumulate_us
+            while self._windows and self._windows[0].t_end_us <= oldest:
+                self._windows.popleft()
+
+    def on_track(self, key: str, msg: Track) -> None:
+        """Add a track update received on ``key``."""
+        now = time.monotonic()
+        with self._lock:
+            self.counts["tracks"] += 1
+            tv = self._tracks.get(key)
+            if tv is None:
+                tv = self._tracks[key] = _TrackView(msg, now)
+            tv.msg, tv.seen = msg, now
+            tv.trail_m.append((round(msg.x, 4), round(msg.y, 4)))
+            uv = self._pixel(msg.x, msg.y, msg.u_px, msg.v_px)
+            if uv is not None:
+                tv.trail_px.append(uv)
+
+    def on_groundtruth(self, msg: GroundTruthPose) -> None:
+        """Add a ground-truth pose."""
+        with self._lock:
+            self.counts["groundtruth"] += 1
+            self._gt[msg.robot] = (msg, time.monotonic())
+
+    def on_telemetry(self, msg: Telemetry) -> None:
+        """Add a telemetry sample (kept: wheel speeds m/s, gyro z rad/s, battery mV)."""
+        with self._lock:
+            self.counts["telemetry"] += 1
+            h = self._telemetry.get(msg.robot)
+            if h is None:
+                h = self._telemetry[msg.robot] = {k: deque(maxlen=self.telemetry_len) for k in
+                                                  ("speed_left", "speed_right", "gyro_z", "battery_mv")}
+            h["speed_left"].append(round(msg.speed_left, 4))
+            h["speed_right"].append(round(msg.speed_right, 4))
+            h["gyro_z"].append(round(msg.gyro[2], 4))
+            h["battery_mv"].append(msg.battery_mv)
+
+    def on_status(self, msg: Status) -> None:
+        """Add a service status."""
+        with self._lock:
+            self.counts["status"] += 1
+            self._status[(msg.role, msg.name)] = (msg, time.monotonic())
+
+    def on_alive(self, role: str, name: str, alive: bool) -> None:
+        """A liveliness token appeared (``alive``) or disappeared."""
+        with self._lock:
+            (self._alive.add if alive else self._alive.discard)((role, name))
+
+    def on_bad(self) -> None:
+        """Count a payload that was not a valid arena message."""
+        with self._lock:
+            self.counts["bad"] += 1
+
+    # -- outputs ------------------------------------------------------------------------------
+    def _pixel(self, x: float, y: float, u: float | None, v: float | None) -> tuple[float, float] | None:
+        if u is not None and v is not None:
+            return (round(u, 1), round(v, 1))
+        if self.H is not None:
+            uv = project(self.H, [(x, y)])[0]
+            return (round(float(uv[0]), 1), round(float(uv[1]), 1))
+        return None
+
+    def _box_px(self, x: float, y: float, yaw: float | None, uv: tuple[float, float]) -> list | None:
+        """Corners (px) of the robot's footprint; with no calibration, None."""
+        if self.H is None:
+            return None
+        L, W = self.robot_size_m
+        c, s = math.cos(yaw or 0.0), math.sin(yaw or 0.0)
+        corners = [(x + c * dx - s * dy, y + s * dx + c * dy)
+                   for dx, dy in ((L / 2, W / 2), (-L / 2, W / 2), (-L / 2, -W / 2), (L / 2, -W / 2))]
+        pc = project(self.H, corners)
+        centre = project(self.H, [(x, y)])[0]
+        pc += np.asarray(uv) - centre  # centre the box on the tracked pixel
+        return [[round(float(a), 1), round(float(b), 1)] for a, b in pc]
+
+    def _heading_px(self, x: float, y: float, yaw: float | None, uv: tuple[float, float]) -> list | None:
+        """End point (px) of a 0.1 m heading arrow from the track's pixel."""
+        if yaw is None or self.H is None:
+            return None
+        a, b = project(self.H, [(x, y), (x + 0.1 * math.cos(yaw), y + 0.1 * math.sin(yaw))])
+        d = b - a
+        return [round(uv[0] + float(d[0]), 1), round(uv[1] + float(d[1]), 1)]
+
+    def snapshot(self) -> dict:
+        """Everything the page shows, as a JSON-able dict (sent by Server-Sent Events)."""
+        now = time.monotonic()
+        with self._lock:
+            for key in [k for k, t in self._tracks.items() if now - t.seen > self.track_timeout_s]:
+                del self._tracks[key]
+            tracks = []
+            for key, tv in sorted(self._tracks.items()):
+                m = tv.msg
+                uv = self._pixel(m.x, m.y, m.u_px, m.v_px)
+                speed = math.hypot(m.vx, m.vy) if m.vx is not None and m.vy is not None else None
+                tracks.append({
+                    "key": key, "id": m.track_id, "robot": m.robot, "label": m.robot or f"#{m.track_id}",
+                    "x": _r(m.x), "y": _r(m.y), "yaw": _r(m.yaw), "speed": _r(speed), "state": m.state,
+                    "n_events": m.n_events, "stamp_us": m.stamp_us, "uv": list(uv) if uv else None,
+                    "box_px": self._box_px(m.x, m.y, m.yaw, uv) if uv else None,
+                    "heading_px": self._heading_px(m.x, m.y, m.yaw, uv) if uv else None,
+                    "trail_m": list(tv.trail_m), "trail_px": list(tv.trail_px), "age_s": round(now - tv.seen, 2),
+                })
+            gts = []
+            for robot, (g, seen) in sorted(self._gt.items()):
+                if now - seen > self.track_timeout_s:
+                    continue
+                gts.append({"robot": robot, "x": _r(g.x), "y": _r(g.y), "yaw": _r(g.yaw), "detector": g.detector,
+                            "uv": list(self._pixel(g.x, g.y, g.u_px, g.v_px) or []) or None})
+            telemetry = {r: {k: list(v) for k, v in h.items()} for r, h in sorted(self._telemetry.items())}
+            services = []
+            for role, name in sorted(set(self._status) | self._alive):
+                st, seen = self._status.get((role, name), (None, None))
+                services.append({
+                    "role": role, "name": name, "alive": (role, name) in self._alive,
+                    "state": st.state if st else None, "host": st.host if st else None,
+                    "rates": {k: round(v, 1) for k, v in (st.rates if st else {}).items()
+                              if isinstance(v, (int, float))},
+                    "gauges": {k: (round(v, 3) if isinstance(v, float) else v)
+                               for k, v in (st.gauges if st else {}).items()},
+                    "errors": st.errors if st else None, "last_error": st.last_error if st else None,
+                    "stale": seen is None or now - seen > self.status_timeout_s,
+                })
+            w, h = self._size or (0, 0)
+            n_events = sum(win.msg.count for win in self._windows)
+            return {
+                "time_ns": time.time_ns(), "frame_no": self.frame_no,
+                "image": {"width": w, "height": h, "events": n_events, "windows": len(self._windows),
+                          "accumulate_ms": self.accumulate_us / 1000, **self._cam_info},
+                "calibrated": self.H is not None, "arena_size_m": list(self.arena_size_m),
+                "tracks": tracks, "groundtruth": gts, "telemetry": telemetry, "services": services,
+                "counts": dict(self.counts),
+            }
+
+    def render_frame(self) -> np.ndarray | None:
+        """The accumulated event image (H x W x 3, RGB uint8): ON black, OFF blue, no event white;
+        None before the first window. Windows are decoded once, on first render."""
+        with self._lock:
+            if self._size is None:
+                return None
+            w, h = self._size
+            wins = list(self._windows)
+            self.frame_no += 1
+        img = np.empty((h, w, 3), np.uint8)
+        img[:] = BACKGROUND_RGB
+        palette = np.array([OFF_RGB, ON_RGB], np.uint8)  # index = polarity
+        for win in wins:
+            if win.events is None:
+                try:
+                    win.events = codec.decode(win.msg.codec, win.msg.data, win.msg.count)
+                except codec.CodecError:
+                    win.events = np.empty(0, codec.EVENT_DTYPE)
+                    self.on_bad()
+            ev = win.events
+            ok = (ev["x"] < w) & (ev["y"] < h)
+            ev = ev[ok]
+            img[ev["y"], ev["x"]] = palette[ev["p"] & 1]  # in time order: the latest event of a pixel wins
+        return img
+
+
+def encode_png(img: np.ndarray) -> bytes:
+    """PNG bytes of an RGB image."""
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise RuntimeError("PNG encoding failed")
+    return buf.tobytes()
