@@ -195,12 +195,19 @@ class Autopilot:
                 self._advance_target(i, plan)
                 self._mode[i] = "turn"
                 return 0.0, 0.0
-            alpha = _wrap(math.atan2(dy, dx) - yaw)
-            if abs(alpha) > math.radians(30):
+            if abs(_wrap(math.atan2(dy, dx) - yaw)) > math.radians(30):
                 self._mode[i] = "turn"
                 return 0.0, 0.0
+            # pure pursuit on the segment: look ahead of our projection onto it
+            a = pts[self._previous(i, plan)]
+            seg = tgt - a
+            seg_len = float(np.hypot(*seg))
+            s_proj = float(np.dot([x - a[0], y - a[1]], seg) / max(seg_len, 1e-9))
+            s_look = min(seg_len, max(0.0, s_proj) + self.LOOKAHEAD_M)
+            lx, ly = a + seg * (s_look / max(seg_len, 1e-9))
+            alpha = _wrap(math.atan2(ly - y, lx - x) - yaw)
             slow = min(1.0, 0.3 + dist / 0.10)   # ease into the corner
-            return self._steer(i, alpha, max(dist, self.LOOKAHEAD_M), p * slow)
+            return self._steer(i, alpha, max(math.hypot(lx - x, ly - y), 0.02), p * slow)
         # zero-point turn towards the next target
         err = _wrap(math.atan2(dy, dx) - yaw)
         if abs(err) < self.TURN_TOL_RAD:
@@ -209,6 +216,11 @@ class Autopilot:
         mag = p * min(1.0, 0.35 + abs(err) / math.radians(45))
         mag = max(mag, 90.0)
         return (-mag, mag) if err > 0 else (mag, -mag)
+
+    def _previous(self, i: int, plan: Plan) -> int:
+        if plan.closed:
+            return (self._target[i] - 1) % len(plan.points)
+        return self._target[i] - self._dir[i]
 
     def _advance_target(self, i: int, plan: Plan) -> None:
         n = len(plan.points)

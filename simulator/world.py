@@ -11,7 +11,8 @@ Model (per robot, vectorised over robots)
 * Motor power ``-400..400`` per side (Zumo 32U4 ``setSpeeds`` units). The target tread
   speed is ``power / 400 * max_speed_mps * gain_side`` with a small static deadband and
   a per-side gain mismatch (seeded, a few %), so "drive straight" curves slightly.
-* First-order motor lag (time constant 50-100 ms, seeded per robot and side).
+* First-order motor lag (time constant 50-100 ms, seeded per robot and side; braking at
+  power 0 is 2.5x faster, and a nearly still unpowered tread stops: static friction).
 * Skid-steer kinematics: forward speed is the mean tread speed minus a small
   longitudinal slip; the yaw rate is ``(v_r - v_l) / (track_width * chi)`` with
   ``chi > 1`` growing with the turn rate (tracks skid sideways when turning), and a
@@ -161,9 +162,13 @@ class World:
         p = self._power
         eff = np.where(np.abs(p) < self.DEADBAND, 0.0, p)
         target = eff / MAX_POWER * self._vmax[:, None] * self._gain
-        alpha = 1.0 - np.exp(-h / self._tau)
+        # the motor driver brakes at power 0 (shorted windings): faster than it accelerates
+        tau = np.where(target == 0.0, 0.4 * self._tau, self._tau)
+        alpha = 1.0 - np.exp(-h / tau)
         v_old = self._vtread.copy()
         self._vtread += (target - self._vtread) * alpha
+        # static friction: an unpowered tread that is nearly still stops
+        self._vtread[(target == 0.0) & (np.abs(self._vtread) < 0.01)] = 0.0
         moving = np.abs(self._vtread) > 1e-4
         noise = self._rng.normal(0.0, self.SPEED_NOISE * math.sqrt(h), self._vtread.shape)
         self._vtread += noise * np.abs(self._vtread) * moving
