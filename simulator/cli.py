@@ -1,0 +1,266 @@
+"""``arena sim``: the simulated arena with its device interfaces.
+
+Runs the world in real time (or as fast as possible with ``--fast``) and serves the
+ceiling event camera as an EVT 3.0 TCP stream, the webcam as MJPEG over HTTP and each
+robot's firmware protocol on its own TCP port (pyserial ``socket://`` URL). Prints where
+each device listens. Robots, sensor size and ports come from flags or a lab config.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import signal
+import sys
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from urllib.parse import urlparse
+
+from simulator.autopilot import PATTERNS, Autopilot, make_plans
+from simulator.camera import CeilingCamera
+from simulator.dvs import DvsParams
+from simulator.evt3 import CameraServer
+from simulator.recording import RawWriter, TruthCsvWriter
+from simulator.scenarios import Scenario
+from simulator.simulation import Simulation
+from simulator.world import LIGHTING_LEVELS, RobotSpec, World
+
+log = logging.getLogger("simulator")
+
+EXAMPLES = """\
+Examples:
+  arena sim --robots 4                         # 4 robots, camera on tcp://127.0.0.1:9000
+  arena sim --robots 2 --autopilot circle --power 0.5 --duration 20 \\
+            --record-raw run.raw --truth-csv run.truth.csv
+  arena sim --robots 8 --camera-port 0 --webcam-port 0 --robot-base-port 0   # free ports
+  arena sim --lab deploy/lab.toml              # robots, sensor size and ports from the lab config
+  arena sim --robots 3 --autopilot cross --fast --duration 10 --record-raw cross.raw --no-webcam
+Then point the services at the printed addresses, e.g.
+  arena edge --source tcp://127.0.0.1:9000     (camera)
+  cv2.VideoCapture("http://127.0.0.1:8090/stream.mjpg")   (webcam)
+  serial.serial_for_url("socket://127.0.0.1:9100")         (robot 0)"""
+
+#: Blocks of simulated time handed to the camera per loop, s.
+BLOCK_S = 0.010
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    """Add the ``sim`` subcommand to an ``arena`` subparsers object."""
+    p = subparsers.add_parser(
+        "sim", help="simulated arena: event camera, webcam and robots on loopback",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=__doc__, epilog=EXAMPLES)
+    add_arguments(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The flags of ``arena sim`` (shared with ``python -m simulator``)."""
+    p.add_argument("--lab", metavar="TOML", help="lab config: robots, camera size and ports")
+    p.add_argument("--robots", type=int, default=None, metavar="N",
+                   help="number of robots (default 4, or the lab config's robots)")
+    p.add_argument("--autopilot", choices=("none",) + PATTERNS, default="none",
+                   help="built-in driver (default none: robots obey their firmware link)")
+    p.add_argument("--power", type=float, default=1.0,
+                   help="autopilot motor power, fraction of full (the paper: 0.5 or 1.0)")
+    p.add_argument("--lighting", choices=LIGHTING_LEVELS, default="full", help="ceiling lighting")
+    p.add_argument("--flicker", type=float, default=0.0, metavar="HZ",
+                   help="light flicker (100 or 120 Hz); simulates the full frame, not real time")
+    p.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")
+    p.add_argument("--width", type=int, default=None, help="event sensor width, px (default 640)")
+    p.add_argument("--height", type=int, default=None, help="event sensor height, px (default 480)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback)")
+    p.add_argument("--camera-port", type=int, default=None,
+                   help="EVT 3.0 TCP port (default 9000 or the lab's camera source; 0 = free port)")
+    p.add_argument("--webcam-port", type=int, default=8090, help="MJPEG HTTP port (0 = free port)")
+    p.add_argument("--no-webcam", action="store_true", help="do not serve the webcam")
+    p.add_argument("--robot-base-port", type=int, default=9100,
+                   help="robot i listens on BASE+i (0 = free ports; lab socket:// URLs win)")
+    p.add_argument("--no-robots", action="store_true", help="do not serve the robot firmware links")
+    p.add_argument("--duration", type=float, default=0.0, metavar="S",
+                   help="stop after S simulated seconds (default 0: until Ctrl-C)")
+    p.add_argument("--fast", action="store_true",
+                   help="as fast as possible instead of real time (camera clients are not dropped)")
+    p.add_argument("--record-raw", metavar="FILE", help="also write the events to a Prophesee RAW file")
+    p.add_argument("--truth-csv", metavar="FILE", help="write truth poses (t_us,robot,x_m,...) to a CSV")
+    p.add_argument("--calibration-out", metavar="FILE",
+                   help="write the event camera calibration JSON (pixel <-> arena points)")
+
+
+def _robots_from_args(args) -> tuple[list[RobotSpec], dict]:
+    """Robot specs and device options from the flags and the optional lab config."""
+    opts = {"width": args.width or 640, "height": args.height or 480,
+            "camera_port": 9000 if args.camera_port is None else args.camera_port,
+            "robot_ports": {}}
+    pattern = args.autopilot if args.autopilot != "none" else "still"
+    if args.lab:
+        from arena.config import ConfigError, load_lab_config
+        try:
+            lab = load_lab_config(args.lab)
+        except (ConfigError, OSError) as e:
+            raise SystemExit(f"arena sim: cannot read lab config {args.lab}: {e}")
+        if lab.cameras:
+            cam = lab.cameras[0]
+            opts["width"], opts["height"] = args.width or cam.width, args.height or cam.height
+            src = urlparse(cam.source or "")
+            if args.camera_port is None and src.scheme == "tcp" and src.port:
+                opts["camera_port"] = src.port
+        n = args.robots if args.robots is not None else len(lab.robots)
+        plans = make_plans(pattern, n, lab.arena.size_m[0])
+        specs = []
+        for i in range(n):
+            if i < len(lab.robots):
+                r = lab.robots[i]
+                specs.append(RobotSpec(r.name, tuple(r.color_rgb), r.marker_id, r.length_m, r.width_m,
+                                       r.track_width_m, r.sprocket_diameter_m, r.counts_per_rev,
+                                       start=plans[i].start_pose()))
+                u = urlparse(r.serial_url or "")
+                if u.scheme == "socket" and u.port:
+                    opts["robot_ports"][i] = u.port
+            else:
+                specs.append(Scenario(n_robots=n, pattern=pattern).robot_specs()[i])
+        return specs, opts
+    n = 4 if args.robots is None else args.robots
+    return Scenario(n_robots=n, pattern=pattern, seed=args.seed).robot_specs(), opts
+
+
+def _check_args(args) -> None:
+    if args.robots is not None and not 0 <= args.robots <= 50:
+        raise SystemExit(f"arena sim: --robots must be in 0..50, got {args.robots}")
+    if not 0.05 <= args.power <= 1.0:
+        raise SystemExit(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
+    if args.duration < 0:
+        raise SystemExit(f"arena sim: --duration must be >= 0, got {args.duration}")
+    for name in ("camera_port", "webcam_port", "robot_base_port"):
+        v = getattr(args, name)
+        if v is not None and not 0 <= v <= 65535:
+            raise SystemExit(f"arena sim: --{name.replace('_', '-')} must be a TCP port 0..65535, got {v}")
+    for name in ("width", "height"):
+        v = getattr(args, name)
+        if v is not None and not 16 <= v <= 4096:
+            raise SystemExit(f"arena sim: --{name} must be 16..4096 px, got {v}")
+    if args.flicker < 0:
+        raise SystemExit(f"arena sim: --flicker must be >= 0 Hz, got {args.flicker}")
+
+
+def run(args) -> int:
+    """Run the simulated arena until --duration or Ctrl-C / SIGTERM. Returns the exit code."""
+    _check_args(args)
+    specs, opts = _robots_from_args(args)
+    world = World(specs, lighting=args.lighting, seed=args.seed)
+    camera = CeilingCamera(opts["width"], opts["height"], seed=args.seed)
+    pilot = None
+    if args.autopilot != "none":
+        pilot = Autopilot(world, make_plans(args.autopilot, len(specs), world.arena_m,
+                                            args.duration or 1e9), args.power)
+    sim = Simulation(world, camera, DvsParams(flicker_hz=args.flicker), pilot, seed=args.seed + 1)
+    stop = {"flag": False}
+
+    def _terminate(signum, frame):
+        stop["flag"] = True
+    old = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        with ExitStack() as stack:
+            try:
+                cam = stack.enter_context(CameraServer(args.host, opts["camera_port"],
+                                                       drop_when_slow=not args.fast))
+            except OSError as e:
+                raise SystemExit(f"arena sim: cannot listen on camera port {opts['camera_port']}: {e}")
+            print(f"camera   {cam.url}   EVT 3.0, {camera.width}x{camera.height}", flush=True)
+            if not args.no_webcam:
+                _start_webcam(stack, world, args)
+            if not args.no_robots:
+                _start_robots(stack, world, args, opts)
+            if args.calibration_out:
+                Path(args.calibration_out).write_text(json.dumps(camera.calibration(), indent=1))
+                print(f"calibration {args.calibration_out}", flush=True)
+            raw = stack.enter_context(RawWriter(args.record_raw, camera.width, camera.height)) \
+                if args.record_raw else None
+            truth = stack.enter_context(TruthCsvWriter(args.truth_csv, [s.name for s in specs])) \
+                if args.truth_csv else None
+            print(f"running  {len(specs)} robots, autopilot {args.autopilot}, lighting "
+                  f"{args.lighting}, {'as fast as possible' if args.fast else 'real time'}"
+                  f"{'' if not args.duration else f', {args.duration:g} s'} (Ctrl-C stops)", flush=True)
+            _loop(sim, cam, raw, truth, args, stop)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    print("stopped", flush=True)
+    return 0
+
+
+def _start_webcam(stack: ExitStack, world: World, args) -> None:
+    try:
+        from simulator.webcam import WebcamServer
+    except ImportError as e:       # pragma: no cover - the module ships with the package
+        print(f"webcam   unavailable ({e})", flush=True)
+        return
+    try:
+        web = stack.enter_context(WebcamServer(world, host=args.host, port=args.webcam_port))
+    except OSError as e:
+        raise SystemExit(f"arena sim: cannot listen on webcam port {args.webcam_port}: {e}")
+    print(f"webcam   {web.url}", flush=True)
+
+
+def _start_robots(stack: ExitStack, world: World, args, opts) -> None:
+    from simulator.robot_emulator import RobotEmulatorServer
+    for i, spec in enumerate(world.robots):
+        port = opts["robot_ports"].get(i, args.robot_base_port + i if args.robot_base_port else 0)
+        try:
+            emu = RobotEmulatorServer(world, i, host=args.host, port=port, seed=args.seed + 100 + i)
+            stack.enter_context(emu)
+        except OSError as e:
+            raise SystemExit(f"arena sim: cannot listen on robot port {port} for {spec.name}: {e}")
+        print(f"robot    {spec.name:10s} {emu.url}", flush=True)
+
+
+def _loop(sim: Simulation, cam: CameraServer, raw, truth, args, stop) -> None:
+    steps = max(1, int(round(BLOCK_S * 1e6 / sim.step_us)))
+    total = math.inf if not args.duration else int(round(args.duration * 1e6 / sim.step_us))
+    done = 0
+    t0 = time.monotonic()
+    last_report, n_events, behind_warned = t0, 0, 0.0
+    while done < total and not stop["flag"]:
+        k = int(min(steps, total - done))
+        ev, _, tr = sim.run(k)
+        done += k
+        cam.publish(ev, until_us=sim.t_us)
+        if raw is not None:
+            raw.write(ev, until_us=sim.t_us)
+        if truth is not None:
+            truth.write(tr)
+        n_events += len(ev)
+        now = time.monotonic()
+        sim_s = done * sim.step_us * 1e-6
+        if not args.fast:
+            lag = (t0 + sim_s) - now
+            if lag > 0:
+                time.sleep(lag)
+            elif -lag > 0.5 and now - behind_warned > 10:
+                behind_warned = now
+                log.warning("simulation is %.1f s behind real time (too many robots for this CPU?)", -lag)
+        if now - last_report >= 10:
+            print(f"t={sim_s:7.1f} s  {n_events / (now - last_report):9.0f} ev/s  real-time factor "
+                  f"{sim_s / (now - t0):.2f}  camera clients {cam.n_clients}", flush=True)
+            last_report, n_events = now, 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m simulator``: the same as ``arena sim``."""
+    p = argparse.ArgumentParser(prog="python -m simulator", description=__doc__, epilog=EXAMPLES,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(p)
+    p.add_argument("-v", "--verbose", action="store_true", help="log more")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    return run(args)
+
+
+if __name__ == "__main__":   # pragma: no cover
+    sys.exit(main())
