@@ -115,19 +115,30 @@ class FrameSource:
     def __init__(self, source: str | int):
         self.source = source
         index = _as_index(source)
-        if index is not None:
-            self._cap = cv2.VideoCapture(index)
-            self.live = True
-        else:
-            s = str(source)
-            self.live = "://" in s
-            if not self.live and not Path(s).exists():
-                raise OSError(f"video file not found: {s}")
-            self._cap = cv2.VideoCapture(s, cv2.CAP_FFMPEG) if self.live else cv2.VideoCapture(s)
-        if not self._cap.isOpened():
-            raise OSError(f"cannot open video source {source!r}")
+        self.live = index is not None or "://" in str(source)
+        if not self.live and not Path(str(source)).exists():
+            raise OSError(f"video file not found: {source}")
+        self._cap = self._open()
         #: Frames read so far.
         self.frames = 0
+
+    def _open(self) -> cv2.VideoCapture:
+        index = _as_index(self.source)
+        if index is not None:
+            cap = cv2.VideoCapture(index)
+        elif self.live:
+            cap = cv2.VideoCapture(str(self.source), cv2.CAP_FFMPEG)
+        else:
+            cap = cv2.VideoCapture(str(self.source))
+        if not cap.isOpened():
+            cap.release()
+            raise OSError(f"cannot open video source {self.source!r}")
+        return cap
+
+    def reopen(self) -> None:
+        """Close and open the source again (a live stream that dropped). Raises ``OSError``."""
+        self._cap.release()
+        self._cap = self._open()
 
     @property
     def fps(self) -> float:

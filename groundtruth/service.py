@@ -210,20 +210,51 @@ class GroundTruthRunner:
 
     def run(self, stop: threading.Event | None = None, max_frames: int | None = None,
             duration_s: float | None = None) -> int:
-        """Loop until the source ends, ``stop`` is set, ``max_frames`` or ``duration_s``.
-        Returns the number of frames processed."""
+        """Loop until a file ends, ``stop`` is set, ``max_frames`` or ``duration_s``; a live
+        source that drops is reopened. Returns the number of frames processed."""
         t_end = None if duration_s is None else time.monotonic() + duration_s
         t_rate, n_rate = time.monotonic(), 0
-        while (stop is None or not stop.is_set()) and (max_frames is None or self.frames < max_frames) \
-                and (t_end is None or time.monotonic() < t_end):
+        stop = stop or threading.Event()
+
+        def running() -> bool:
+            return not stop.is_set() and (max_frames is None or self.frames < max_frames) \
+                and (t_end is None or time.monotonic() < t_end)
+
+        while running():
             if not self.step():
-                break
+                if not self.source.live or not self._reconnect(stop, running):
+                    break
+                continue
             n_rate += 1
             now = time.monotonic()
             if self.svc is not None and now - t_rate >= 1.0:
                 self.svc.gauge("fps", round(n_rate / (now - t_rate), 2))
                 t_rate, n_rate = now, 0
         return self.frames
+
+    def _reconnect(self, stop: threading.Event, running) -> bool:
+        """A live source stopped delivering: reopen it with backoff (0.2 s doubling to 5 s)
+        while the run goes on. Returns False if the run ended first."""
+        delay = 0.2
+        while running():
+            msg = f"video source {self.source.source} stopped delivering frames; reconnecting"
+            if self.svc is not None:
+                self.svc.error(msg)
+                self.svc.set_state("waiting")
+            else:
+                log.warning(msg)
+            if stop.wait(delay):
+                return False
+            try:
+                self.source.reopen()
+            except OSError:
+                delay = min(2 * delay, 5.0)
+                continue
+            if self.svc is not None:
+                self.svc.count("reconnects")
+                self.svc.set_state("running")
+            return True
+        return False
 
     def close(self) -> None:
         if self._csv is not None:

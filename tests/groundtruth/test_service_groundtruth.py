@@ -139,3 +139,30 @@ def test_detection_message_round_trip():
     d = Detection(12, "zumo1", 0.5, 0.6, float("nan"), 100.0, 200.0, "hsv")
     msg = decode(detection_to_message(d).encode())
     assert msg.robot == "zumo1" and msg.yaw is None and msg.stamp_us == 12 and msg.x == 0.5
+
+
+def test_reconnects_when_the_live_stream_drops(tmp_path):
+    """The webcam server restarts on the same port: the runner reopens the URL and goes on."""
+    from groundtruth.rgb import FrameSource
+    from groundtruth.service import GroundTruthRunner
+
+    w = _world()
+    m = WebcamModel(w)
+    h = homography_from_calibration(m.calibration)
+    cam = WebcamServer(m).start()
+    port = cam.port
+    runner = GroundTruthRunner(None, FrameSource(cam.url), MarkerDetector({3: "zumo1"}, h),
+                               csv_path=tmp_path / "gt.csv")
+    assert runner.run(max_frames=5) == 5
+    cam.stop()
+    second = WebcamServer(m, port=port)
+    restarted = threading.Timer(0.5, second.start)
+    restarted.start()
+    try:
+        assert runner.run(max_frames=10, duration_s=30) == 10
+    finally:
+        restarted.join()
+        second.stop()
+        runner.close()
+        runner.source.close()
+    assert runner.detections == 10
