@@ -83,6 +83,9 @@ class ZenohSettings:
         put("timestamping/enabled", {"router": True, "peer": True, "client": True})
         # Senders on a host whose clock runs slightly ahead must not have their samples dropped.
         put("timestamping/drop_future_timestamp", False)
+        if conf.get_json("connect/retry") in ("null", ""):
+            # Reconnect to a restarted router within ~1 s (Zenoh's default backoff grows to 4 s).
+            put("connect/retry", {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2})
         if self.lease_ms:
             put("transport/link/tx/lease", int(self.lease_ms))
             put("transport/link/tx/keep_alive", 4)

@@ -8,6 +8,7 @@ with a wall-clock time ``t`` (s), so the test can order what happened on several
     python netclient.py sub KEYEXPR                print every sample received
     python netclient.py pub KEYEXPR --count 20     publish (a declared publisher, as services do)
     python netclient.py get KEYEXPR                query and print the replies (or errors)
+    python netclient.py alive KEYEXPR              print the liveliness tokens alive on KEYEXPR
     python netclient.py queryable KEYEXPR          answer queries and print each one received
     python netclient.py service ROLE NAME          an arena.service.Service (status + liveliness)
 
@@ -29,7 +30,7 @@ def emit(event: str, **fields) -> None:
 
 def main() -> int:
     p = argparse.ArgumentParser()
-    p.add_argument("mode", choices=["open", "sub", "pub", "get", "queryable", "service"])
+    p.add_argument("mode", choices=["open", "sub", "pub", "get", "alive", "queryable", "service"])
     p.add_argument("args", nargs="*")
     p.add_argument("--duration", type=float, default=20.0)
     p.add_argument("--count", type=int, default=20)
@@ -66,6 +67,11 @@ def main() -> int:
                         emit("reply", key=str(reply.ok.key_expr), payload=bytes(reply.ok.payload).decode(errors="replace"))
                     else:
                         emit("reply_error", payload=bytes(reply.err.payload).decode(errors="replace"))
+                emit("done")
+            elif a.mode == "alive":
+                for reply in session.liveliness().get(a.args[0], timeout=min(a.duration, 3.0)):
+                    if reply.ok is not None:
+                        emit("alive", key=str(reply.ok.key_expr))
                 emit("done")
             elif a.mode == "queryable":
                 def on_query(query):
