@@ -2,11 +2,15 @@
 
 Routes: ``/`` the page; ``/static/<file>`` its JS and CSS (package data); ``/frame.png`` the
 current accumulated event image; ``/state.json`` one snapshot; ``/events`` Server-Sent Events,
-one JSON snapshot per message every ``period_s``. Nothing is fetched from outside.
+one JSON snapshot per message every ``period_s``, with the event image rendered at the same moment
+as a ``data:image/png;base64`` URL in ``frame`` (only when new windows arrived since the previous
+message), so the page draws tracks over the very image they belong to. Nothing is fetched from
+outside.
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import logging
 import threading
@@ -104,8 +108,15 @@ class _Handler(BaseHTTPRequestHandler):
         srv.clients += 1
         try:
             self.wfile.write(f"retry: 1000\nevent: hello\ndata: {json.dumps({'title': srv.title})}\n\n".encode())
+            sent_windows = -1
             while not srv.stopping.is_set():
-                data = json.dumps(srv.state.snapshot(), separators=(",", ":"))
+                snap = srv.state.snapshot()
+                if snap["counts"]["windows"] != sent_windows:
+                    img = srv.state.render_frame()
+                    if img is not None:
+                        snap["frame"] = "data:image/png;base64," + base64.b64encode(encode_png(img)).decode()
+                        sent_windows = snap["counts"]["windows"]
+                data = json.dumps(snap, separators=(",", ":"))
                 self.wfile.write(f"data: {data}\n\n".encode())
                 self.wfile.flush()
                 srv.stopping.wait(srv.period_s)

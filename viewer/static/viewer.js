@@ -1,5 +1,6 @@
-// arena view: draws the snapshots the server streams by Server-Sent Events (/events) and the
-// accumulated event image it renders (/frame.png). No build step, no dependencies.
+// arena view: draws the snapshots the server streams by Server-Sent Events (/events); each one
+// carries the accumulated event image rendered at the same moment (data URL in `frame`) when it
+// changed. No build step, no dependencies.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
@@ -16,19 +17,6 @@ function fmt(v, nd = 2) { return v === null || v === undefined ? "–" : Number(
 
 function esc(s) {
   return String(s).replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" }[c]));
-}
-
-// ---- event image: reload /frame.png one after the other ------------------------------------
-function nextFrame() {
-  const img = new Image();
-  img.onload = () => {
-    $("frame").src = img.src;
-    $("noevents").style.display = "none";
-    window.arenaFrames += 1;
-    setTimeout(nextFrame, 100);
-  };
-  img.onerror = () => setTimeout(nextFrame, 500);
-  img.src = "/frame.png?n=" + Date.now();
 }
 
 // ---- overlay on the event image (sensor px) --------------------------------------------------
@@ -67,8 +55,9 @@ function drawOverlay(s) {
     } else {
       ctx.rect(t.uv[0] - 10 * lw, t.uv[1] - 10 * lw, 20 * lw, 20 * lw);
     }
-    ctx.lineWidth = 2 * lw; ctx.stroke(); ctx.lineWidth = lw;
-    if (t.heading_px) arrow(ctx, t.uv[0], t.uv[1], t.heading_px[0], t.heading_px[1], 6 * lw);
+    ctx.strokeStyle = "#fff"; ctx.lineWidth = 4 * lw; ctx.stroke();   // halo: visible on events too
+    ctx.strokeStyle = c; ctx.lineWidth = 2 * lw; ctx.stroke(); ctx.lineWidth = lw;
+    if (t.heading_px) { ctx.lineWidth = 2 * lw; arrow(ctx, t.uv[0], t.uv[1], t.heading_px[0], t.heading_px[1], 6 * lw); ctx.lineWidth = lw; }
     ctx.fillText(t.label, t.uv[0] + 12 * lw, t.uv[1] - 12 * lw);
     ctx.globalAlpha = 1;
   }
@@ -116,7 +105,7 @@ function drawTracks(s) {
   $("tracks").tBodies[0].innerHTML = s.tracks.map((t) => {
     const g = t.robot ? gt[t.robot] : null;
     const err = g ? Math.hypot(t.x - g.x, t.y - g.y) : null;
-    const hd = t.yaw === null ? null : (t.yaw * 180) / Math.PI;
+    const hd = t.yaw === null ? null : ((((t.yaw * 180) / Math.PI + 180) % 360) + 360) % 360 - 180;
     return `<tr data-track="${esc(t.key)}"><td style="color:${colour(t.label)}">${esc(t.label)}</td><td>${fmt(t.x, 3)}</td>` +
       `<td>${fmt(t.y, 3)}</td><td>${fmt(hd, 0)}</td><td>${fmt(t.speed, 2)}</td><td>${esc(t.state)}</td>` +
       `<td>${t.n_events}</td><td>${fmt(err, 3)}</td></tr>`;
@@ -170,6 +159,12 @@ function drawServices(s) {
 }
 
 function render(s) {
+  if (s.frame) {
+    $("frame").src = s.frame;
+    $("noevents").style.display = "none";
+    window.arenaFrames += 1;
+    delete s.frame;
+  }
   window.arenaState = s;
   const im = s.image;
   $("caminfo").textContent = im.width ? `${im.camera || ""} ${im.width}×${im.height} px · last ${im.accumulate_ms} ms · ` +
@@ -183,4 +178,3 @@ const es = new EventSource("/events");
 es.onopen = () => { $("conn").textContent = "live"; $("conn").className = "ok"; };
 es.onerror = () => { $("conn").textContent = "disconnected, retrying…"; $("conn").className = "bad"; };
 es.onmessage = (e) => render(JSON.parse(e.data));
-nextFrame();
