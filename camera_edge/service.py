@@ -18,6 +18,7 @@ import time
 import zenoh
 
 from arena.codec import encode
+from arena.events import empty_events
 from arena.keys import events_key
 from arena.messages import EventWindow
 from arena.service import Service
@@ -127,6 +128,10 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
     Returns the final counters (events in/out, windows, drops, ...)."""
     stop = stop or threading.Event()
     live = not isinstance(source, FileSource)
+    # load the compiled codec and filters now (seconds on a busy machine), not on the first windows
+    encode(empty_events(1), codec)
+    for f in pipeline.filters:
+        f._apply(empty_events(0))
     with Service(session, "edge", camera) as svc:
         pub = WindowPublisher(session, camera, source.width, source.height, svc, codec, queue_size)
         cpu0, wall0 = time.process_time(), time.monotonic()

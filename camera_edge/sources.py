@@ -187,7 +187,7 @@ class TcpSource(EventSource):
             self.width, self.height = int(q.get("width", width or 1280)), int(q.get("height", height or 720))
         except ValueError:
             raise SourceError(f"{url!r}: width and height must be integers") from None
-        make_decoder(self.version)  # validates the version early
+        make_decoder(self.version).feed(b"")  # validates the version; loads the compiled decoder
         self.connect_timeout_s, self.backoff_s, self.max_backoff_s = connect_timeout_s, backoff_s, max_backoff_s
         self._recv_bytes = recv_bytes
         self._sock: socket.socket | None = None

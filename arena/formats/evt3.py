@@ -29,7 +29,7 @@ from arena.events import EVENT_DTYPE
 _WRAP = 1 << 24
 
 # state slots
-_Y, _TH, _TL, _BX, _POL, _OFF, _HAVE_T, _SKIPPED = range(8)
+_Y, _TH, _TL, _BX, _POL, _OFF, _HAVE_T, _SKIPPED, _TL_FRESH = range(9)
 
 
 @njit(cache=True, nogil=True)
@@ -56,6 +56,7 @@ def _decode(words, state, xs, ys, ps, ts):
     off = state[_OFF]
     have_t = state[_HAVE_T]
     skipped = state[_SKIPPED]
+    fresh = state[_TL_FRESH]
     t = off + ((th << 12) | tl)
     n = 0
     for i in range(words.size):
@@ -92,13 +93,17 @@ def _decode(words, state, xs, ys, ps, ts):
         elif typ == 0x6:
             tl = w & 0xFFF
             t = off + ((th << 12) | tl)
+            fresh = 1
         elif typ == 0x8:
             nth = w & 0xFFF
             if have_t and nth < th and th - nth > 2048:
                 off += _WRAP
+            if nth != th:
+                fresh = 0
             th = nth
             have_t = 1
             t = off + ((th << 12) | tl)
+    state[_TL_FRESH] = fresh
     state[_Y] = y
     state[_TH] = th
     state[_TL] = tl
@@ -121,7 +126,7 @@ class Evt3Decoder:
     word_bytes = 2
 
     def __init__(self) -> None:
-        self._state = np.zeros(8, dtype=np.int64)
+        self._state = np.zeros(9, dtype=np.int64)
         self._rest = b""
 
     @property
@@ -131,9 +136,12 @@ class Evt3Decoder:
 
     @property
     def time_us(self) -> int | None:
-        """Latest sensor time seen in the stream (µs), also from time words without events."""
+        """Sensor time the stream has surely reached (µs), also from time words without events:
+        a new TIME_HIGH period counts from its start until a TIME_LOW refines it."""
         st = self._state
-        return int(st[_OFF] + ((st[_TH] << 12) | st[_TL])) if st[_HAVE_T] else None
+        if not st[_HAVE_T]:
+            return None
+        return int(st[_OFF] + ((st[_TH] << 12) | (st[_TL] if st[_TL_FRESH] else 0)))
 
     @property
     def pending_bytes(self) -> int:
