@@ -35,12 +35,16 @@ def register(sub) -> None:
         epilog="Examples:\n"
                "  arena view                                  # then open http://127.0.0.1:8080/\n"
                "  arena view --lab lab.toml --camera cam0     # draw tracks with the lab's calibration\n"
+               "  arena view --calibration runs/demo-x/cam0.calib.json\n"
                "  arena view --port 0                         # any free port (printed)\n"
                "  arena view --host 0.0.0.0                   # reachable from other hosts (no auth!)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 = any free port)")
     p.add_argument("--camera", default=None,
                    help="camera whose events are shown (default: the lab's first camera, else the first seen)")
+    p.add_argument("--calibration", metavar="JSON", default=None,
+                   help="camera calibration file (pixel <-> arena m) used to draw tracks that carry no pixel "
+                        "position; overrides the lab config's")
     p.add_argument("--accumulate-ms", type=float, default=100.0,
                    help="event image shows this much sensor time (default 100 ms)")
     p.add_argument("--rate", type=float, default=10.0, help="updates per second sent to the page (default 10)")
@@ -49,20 +53,32 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+def _read_calibration(path: str, what: str) -> dict:
+    from viewer.state import ViewerConfigError
+
+    try:
+        calib = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ViewerConfigError(f"{what}: cannot read calibration {path}: {exc}") from None
+    if not isinstance(calib, dict):
+        raise ViewerConfigError(f"{what}: {path} is not a calibration JSON object")
+    return calib
+
+
 def _lab_view(args):
-    """(camera, homography arena->px, arena size m, robot size m) from the lab config, if any."""
-    from viewer.state import ViewerConfigError, arena_to_pixel_homography
+    """(camera, homography arena->px, arena size m, robot size m) from --calibration and the lab config."""
+    from viewer.state import arena_to_pixel_homography
 
     lab = load_lab_from_args(args)
+    calib = _read_calibration(args.calibration, "--calibration") if args.calibration else None
     if lab is None:
-        return args.camera, None, (1.83, 1.83), (0.10, 0.10)
+        H = arena_to_pixel_homography(calib) if calib else None
+        return args.camera, H, (1.83, 1.83), (0.10, 0.10)
     cam = lab.camera(args.camera) if lab.cameras else None
-    calib = cam.calibration if cam is not None else None
-    if cam is not None and calib is None and cam.calibration_file:
-        try:
-            calib = json.loads(Path(cam.calibration_file).read_text())
-        except (OSError, ValueError) as exc:
-            raise ViewerConfigError(f"camera {cam.name}: cannot read calibration {cam.calibration_file}: {exc}") from None
+    if cam is not None and calib is None:
+        calib = cam.calibration
+        if calib is None and cam.calibration_file:
+            calib = _read_calibration(cam.calibration_file, f"camera {cam.name}")
     H = arena_to_pixel_homography(calib) if calib else None
     size = (max(r.length_m for r in lab.robots), max(r.width_m for r in lab.robots)) if lab.robots else (0.1, 0.1)
     return (cam.name if cam else args.camera), H, lab.arena.size_m, size

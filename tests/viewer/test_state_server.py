@@ -127,6 +127,13 @@ def test_cli_errors_are_clear(tmp_path):
     lab.write_text('[[cameras]]\nname = "cam0"\ncalibration = "missing.json"\n')
     r = subprocess.run(arena_cmd("view", "--lab", str(lab)), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "missing.json" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run(arena_cmd("view", "--calibration", str(tmp_path / "nope.json")), capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 2 and "nope.json" in r.stderr and "Traceback" not in r.stderr
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"points": []}')
+    r = subprocess.run(arena_cmd("view", "--calibration", str(bad)), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "at least 4" in r.stderr and "Traceback" not in r.stderr
     import socket
     with socket.socket() as s:
         port = free_port()
