@@ -208,7 +208,7 @@ class DetectorConfig:
     min_fill: float = 0.12
     noise_false_rate: float = 1e-7
     min_area_chassis: float = 0.12
-    min_speed_mps: float = 0.04
+    min_speed_mps: float = 0.05
     chassis_aspect: float = 1.0
     min_anisotropy: float = 0.08
     backend: str = "grid"

@@ -42,6 +42,8 @@ class FleetConfig:
         yaw_accel_radps2: heading process noise, rad/s^2.
         min_speed_mps: speed above which the motion heading is trusted, m/s.
         shape_sigma_deg: noise of the shape orientation, degrees.
+        yaw_reset_updates: consecutive motion headings more than 45 degrees off the filter
+            that restart it on the motion heading.
         confirm_hits: detections needed to confirm a track.
         tentative_max_misses: consecutive misses that delete a tentative track.
         stop_tau_s: time constant with which a coasting track brakes to rest, s.
@@ -56,9 +58,10 @@ class FleetConfig:
     pos_sigma_m: float = 0.004
     vel_sigma_mps: float = 0.03
     yaw_accel_radps2: float = 30.0
-    min_speed_mps: float = 0.04
+    min_speed_mps: float = 0.05
     shape_sigma_deg: float = 3.0
-    confirm_hits: int = 4
+    yaw_reset_updates: int = 8
+    confirm_hits: int = 3
     tentative_max_misses: int = 3
     stop_tau_s: float = 0.05
     fleet_size: int | None = None
@@ -129,6 +132,7 @@ class _Track:
         self.yaw = math.nan
         self.yaw_rate = 0.0
         self.py = [1.0, 0.0, 1.0]
+        self._disagree = 0
         self.state = TENTATIVE
         self.age = 0
         self.hits = 1
@@ -202,13 +206,20 @@ class _Track:
         lag = ((ob.t_us - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
         speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
         if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps:
-            if math.isnan(self.yaw) or (self.misses > 0 and
-                                        abs(_wrap(ob.yaw + self.yaw_rate * lag - self.yaw)) > math.radians(30)):
-                # first heading, or the robot turned while it was not seen: restart the filter
-                self.yaw = _wrap(ob.yaw)
-                self.yaw_rate = 0.0
-                self.py = [math.radians(10) ** 2, 0.0, 1.0]
+            pred = self.yaw - self.yaw_rate * lag
+            if math.isnan(self.yaw):
+                # the first heading needs a clear motion (a starting robot's cluster grows
+                # unevenly and its apparent motion can point anywhere)
+                if speed >= 2.0 * self.cfg.min_speed_mps:
+                    self._yaw_reset(ob.yaw)
+            elif abs(_wrap(ob.yaw - pred)) > math.radians(45):
+                # motion disagrees with the filter: an outlier, or the filter is on a wrong
+                # branch (or the robot turned unseen) when it persists
+                self._disagree += 1
+                if self._disagree >= self.cfg.yaw_reset_updates or self.misses > 0:
+                    self._yaw_reset(ob.yaw)
             else:
+                self._disagree = 0
                 sy = math.radians(4.0) ** 2
                 if math.isfinite(ob.speed_sigma) and speed > 0:
                     sy += (ob.speed_sigma / speed) ** 2
@@ -219,6 +230,12 @@ class _Track:
             innov = (ob.shape_yaw - pred + period / 2.0) % period - period / 2.0
             if abs(innov) < period / 3.0:
                 self._yaw_measure(pred + innov, lag, math.radians(self.cfg.shape_sigma_deg) ** 2)
+
+    def _yaw_reset(self, yaw: float) -> None:
+        self.yaw = _wrap(yaw)
+        self.yaw_rate = 0.0
+        self.py = [math.radians(10) ** 2, 0.0, 1.0]
+        self._disagree = 0
 
     def _yaw_measure(self, yaw_meas: float, lag: float, var: float) -> None:
         """Kalman update with a yaw measured ``lag`` s before the filter time: H = [1, -lag]."""
