@@ -117,15 +117,6 @@ def _decode21(words, state, xs, ys, ps, ts):
     return n
 
 
-def _pack(xs, ys, ps, ts, n):
-    ev = np.empty(n, dtype=EVENT_DTYPE)
-    ev["x"] = xs[:n]
-    ev["y"] = ys[:n]
-    ev["p"] = ps[:n]
-    ev["t"] = ts[:n]
-    return ev
-
-
 class _WordDecoder:
     word_bytes = 4
 
@@ -164,12 +155,9 @@ class Evt2Decoder(_WordDecoder):
 
     def feed(self, data: bytes | bytearray | memoryview) -> np.ndarray:
         words = self._words(data, "<u4")
-        xs = np.empty(words.size, np.uint16)
-        ys = np.empty(words.size, np.uint16)
-        ps = np.empty(words.size, np.uint8)
-        ts = np.empty(words.size, np.int64)
-        n = _decode2(words, self._state, xs, ys, ps, ts)
-        return _pack(xs, ys, ps, ts, n)
+        ev = np.empty(words.size, EVENT_DTYPE)
+        n = _decode2(words, self._state, ev["x"], ev["y"], ev["p"], ev["t"])
+        return ev[:n].copy() if n < 0.9 * ev.size else ev[:n]
 
 
 class Evt21Decoder(_WordDecoder):
@@ -179,13 +167,9 @@ class Evt21Decoder(_WordDecoder):
 
     def feed(self, data: bytes | bytearray | memoryview) -> np.ndarray:
         words = self._words(data, "<u8")
-        cap = _count21(words)
-        xs = np.empty(cap, np.uint16)
-        ys = np.empty(cap, np.uint16)
-        ps = np.empty(cap, np.uint8)
-        ts = np.empty(cap, np.int64)
-        n = _decode21(words, self._state, xs, ys, ps, ts)
-        return _pack(xs, ys, ps, ts, n)
+        ev = np.empty(_count21(words), EVENT_DTYPE)
+        n = _decode21(words, self._state, ev["x"], ev["y"], ev["p"], ev["t"])
+        return ev if n == ev.size else ev[:n].copy()
 
 
 def _wrap_prefix(epochs: int) -> bytes:

@@ -32,17 +32,22 @@ _WRAP = 1 << 24
 _Y, _TH, _TL, _BX, _POL, _OFF, _HAVE_T, _SKIPPED, _TL_FRESH = range(9)
 
 
+_POPCOUNT = np.array([bin(i).count("1") for i in range(4096)], dtype=np.int64)
+
+
 @njit(cache=True, nogil=True)
-def _count_upper_bound(words):
+def _count_events(words, popcount):
+    """Number of events the words encode (events before the first TIME_HIGH included)."""
     n = 0
     for i in range(words.size):
-        typ = words[i] >> 12
+        w = words[i]
+        typ = w >> 12
         if typ == 0x2:
             n += 1
         elif typ == 0x4:
-            n += 12
+            n += popcount[w & 0xFFF]
         elif typ == 0x5:
-            n += 8
+            n += popcount[w & 0xFF]
     return n
 
 
@@ -161,18 +166,9 @@ class Evt3Decoder:
 
 def decode_words(words: np.ndarray, state: np.ndarray) -> np.ndarray:
     """Decode a uint16 word array with a decoder ``state`` (updated in place)."""
-    cap = _count_upper_bound(words)
-    xs = np.empty(cap, np.uint16)
-    ys = np.empty(cap, np.uint16)
-    ps = np.empty(cap, np.uint8)
-    ts = np.empty(cap, np.int64)
-    n = _decode(words, state, xs, ys, ps, ts)
-    ev = np.empty(n, dtype=EVENT_DTYPE)
-    ev["x"] = xs[:n]
-    ev["y"] = ys[:n]
-    ev["p"] = ps[:n]
-    ev["t"] = ts[:n]
-    return ev
+    ev = np.empty(_count_events(words, _POPCOUNT), dtype=EVENT_DTYPE)
+    n = _decode(words, state, ev["x"], ev["y"], ev["p"], ev["t"])  # writes straight into the fields
+    return ev if n == ev.size else ev[:n].copy()
 
 
 def decode_evt3(data: bytes) -> np.ndarray:
