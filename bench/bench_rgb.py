@@ -10,7 +10,7 @@ robots driving circles at 100 % and 50 % power; errors against the simulator's e
   shell-top homography, front mark / motion heading).
 * ours aruco — groundtruth.rgb.MarkerDetector (ArUco 4x4 ids, sub-pixel corners).
 
-Also prints the webcam model's render cost (ms/frame) for 1, 4, 8 and 16 robots.
+Also prints the detectors under dimmed and dark light and the webcam model's render cost (ms/frame) for 1, 4, 8 and 16 robots.
 
 Usage: python bench/bench_rgb.py [--seconds 10]
 """
@@ -73,7 +73,9 @@ class PaperBaseline:
         return out
 
 
-def evaluate(n: int, kind: str, seconds: float) -> dict:
+def evaluate(n: int, kind: str, seconds: float, lighting: str = "full") -> dict:
+    """Run one detector; colour ranges are sampled in full light (at set-up), then the
+    light is set to ``lighting``."""
     w = scene(n, markers=(kind == "aruco"))
     m = WebcamModel(w)
     top = homography_from_calibration(m.calibration)
@@ -89,6 +91,7 @@ def evaluate(n: int, kind: str, seconds: float) -> dict:
             det = HsvDetector(ranges, top)
         else:
             det = PaperBaseline(ranges, homography_from_calibration(m.calibration, "floor_points"))
+    w.lighting = lighting
     pos, yaw, found, t_det = [], [], 0, 0.0
     frames = int(seconds * 24)
     for _ in range(frames):
@@ -107,11 +110,11 @@ def evaluate(n: int, kind: str, seconds: float) -> dict:
             pos.append(100 * math.hypot(d.x_m - truth[i, 0], d.y_m - truth[i, 1]))
             if not math.isnan(d.yaw_rad):
                 yaw.append(math.degrees(abs((d.yaw_rad - truth[i, 2] + math.pi) % (2 * math.pi) - math.pi)))
-    pos, yaw = np.array(pos), np.array(yaw)
-    return {"pos_med": np.median(pos), "pos_p95": np.percentile(pos, 95),
-            "yaw_med": np.median(yaw) if len(yaw) else float("nan"),
-            "yaw_p95": np.percentile(yaw, 95) if len(yaw) else float("nan"),
-            "recall": found / (frames * n), "fps": frames / t_det}
+    def stat(a, q):
+        return float(np.percentile(a, q)) if len(a) else float("nan")
+
+    return {"pos_med": stat(pos, 50), "pos_p95": stat(pos, 95), "yaw_med": stat(yaw, 50),
+            "yaw_p95": stat(yaw, 95), "recall": found / (frames * n), "fps": frames / t_det}
 
 
 def render_cost(n: int, frames: int = 48) -> float:
@@ -149,6 +152,13 @@ def main() -> None:
             print(f"   {k} vs baseline: position error x{b['pos_med'] / r['pos_med']:.1f} smaller, "
                   f"heading error x{b['yaw_med'] / r['yaw_med']:.1f} smaller, speed x{r['fps'] / b['fps']:.2f}")
         print()
+    print("lighting (4 robots; colour ranges sampled in full light):")
+    print(f"{'light':<7} {'detector':<9} {'pos med cm':>10} {'yaw med °':>9} {'recall':>7}")
+    for light in ("dimmed", "dark"):
+        for k in ("baseline", "hsv", "aruco"):
+            r = evaluate(4, k, min(args.seconds, 5.0), light)
+            print(f"{light:<7} {k:<9} {r['pos_med']:>10.3f} {r['yaw_med']:>9.2f} {r['recall']:>7.3f}")
+    print()
     print("webcam model render cost (ms/frame; 24 fps real time needs < 41.7):")
     for n in (1, 4, 8, 16):
         print(f"  {n:>2} robots: {render_cost(n):6.2f} ms")

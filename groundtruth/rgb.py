@@ -282,13 +282,16 @@ class HsvDetector:
         top_ratio: blob pixels darker than this fraction of the blob's bright (90th
             percentile) value are the shaded shell sides the perspective shows; they are
             left out of the centroid and the outline.
+        search_radius_px: a robot found in the previous frame is first searched within this
+            many pixels of its last position (the whole frame if it is not found there).
     """
 
     name = "hsv"
 
     def __init__(self, ranges: dict, homography: Homography, shell_size_m=(0.10, 0.10),
                  area_tolerance: float = 2.2, min_solidity: float = 0.55, front_mark: bool = True,
-                 motion_min_m: float = 0.02, motion_window_us: int = 300_000, top_ratio: float = 0.75):
+                 motion_min_m: float = 0.02, motion_window_us: int = 300_000, top_ratio: float = 0.75,
+                 search_radius_px: int = 60):
         self.ranges = {name: HsvRange.parse(r) for name, r in ranges.items()}
         self.homography = homography
         self.shell_area_m2 = float(shell_size_m[0]) * float(shell_size_m[1])
@@ -298,6 +301,8 @@ class HsvDetector:
         self.motion_min_m = float(motion_min_m)
         self.motion_window_us = int(motion_window_us)
         self.top_ratio = float(top_ratio)
+        self.search_radius_px = int(search_radius_px)
+        self._last_px: dict[str, tuple[float, float]] = {}
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
         self.history_: dict[str, deque] = {}
 
@@ -305,15 +310,38 @@ class HsvDetector:
         """Detect every configured robot in a BGR frame captured at ``t_us`` (µs)."""
         _check_frame(frame)
         hsv = cv2.cvtColor(frame, cv2.COLOR_BGR2HSV)
+        h, w = hsv.shape[:2]
         out = []
         for robot, rng in self.ranges.items():
-            mask = cv2.morphologyEx(rng.mask(hsv), cv2.MORPH_OPEN, self._kernel)
-            det = self._best_blob(mask, hsv[..., 2], robot, t_us)
-            if det is not None:
+            det = None
+            last = self._last_px.get(robot)
+            if last is not None:          # search near the last position first (cheap)
+                r = self.search_radius_px
+                x0, y0 = max(0, int(last[0]) - r), max(0, int(last[1]) - r)
+                x1, y1 = min(w, int(last[0]) + r), min(h, int(last[1]) + r)
+                if x1 - x0 > 8 and y1 - y0 > 8:
+                    det = self._search(hsv, rng, robot, t_us, (x0, y0, x1, y1))
+            if det is None:
+                det = self._search(hsv, rng, robot, t_us, (0, 0, w, h))
+            if det is None:
+                self._last_px.pop(robot, None)
+            else:
+                self._last_px[robot] = (det.u_px, det.v_px)
                 out.append(det)
         return out
 
-    def _best_blob(self, mask: np.ndarray, value: np.ndarray, robot: str, t_us: int) -> Detection | None:
+    def _search(self, hsv, rng: HsvRange, robot: str, t_us: int, box) -> Detection | None:
+        x0, y0, x1, y1 = box
+        sub = hsv[y0:y1, x0:x1]
+        mask = cv2.morphologyEx(rng.mask(sub), cv2.MORPH_OPEN, self._kernel)
+        inner = (x0 > 0, y0 > 0, x1 < hsv.shape[1], y1 < hsv.shape[0])
+        return self._best_blob(mask, sub[..., 2], robot, t_us, np.array([x0, y0], float), inner)
+
+    def _best_blob(self, mask: np.ndarray, value: np.ndarray, robot: str, t_us: int,
+                   off: np.ndarray, inner: tuple[bool, bool, bool, bool]) -> Detection | None:
+        """Best blob of a (sub-)mask whose pixel (0, 0) is image pixel ``off``; ``inner``
+        tells which sides (left, top, right, bottom) are cut from a larger image: a blob
+        touching one of those may be clipped, so the caller searches the whole image."""
         contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         best = None
         lo = self.shell_area_m2 / self.area_tolerance
@@ -325,7 +353,7 @@ class HsvDetector:
             hull_area_px = cv2.contourArea(hull)
             if hull_area_px < 4:
                 continue
-            hull_m = self.homography.to_arena(hull.reshape(-1, 2).astype(float)).astype(np.float32)
+            hull_m = self.homography.to_arena(hull.reshape(-1, 2) + off).astype(np.float32)
             area_m2 = cv2.contourArea(hull_m)
             if not lo <= area_m2 <= hi:
                 continue
@@ -340,14 +368,18 @@ class HsvDetector:
         if best is None:
             return None
         _, contour, hull, hull_m = best
+        bx, by, bw, bh = cv2.boundingRect(contour)
+        if (inner[0] and bx == 0) or (inner[1] and by == 0) or \
+                (inner[2] and bx + bw >= mask.shape[1]) or (inner[3] and by + bh >= mask.shape[0]):
+            return None
         refined = self._top_face(mask, value, contour)
         if refined is not None:
             mask, hull = refined
-            hull_m = self.homography.to_arena(hull.reshape(-1, 2).astype(float)).astype(np.float32)
+            hull_m = self.homography.to_arena(hull.reshape(-1, 2) + off).astype(np.float32)
         m = cv2.moments(hull)
-        u, v = m["m10"] / m["m00"], m["m01"] / m["m00"]
+        u, v = m["m10"] / m["m00"] + off[0], m["m01"] / m["m00"] + off[1]
         x, y = (float(a) for a in self.homography.to_arena(np.array([u, v])))
-        yaw = self._heading(mask, hull, hull_m, (x, y), robot, t_us)
+        yaw = self._heading(mask, hull, hull_m, (x, y), robot, t_us, off)
         return Detection(int(t_us), robot, x, y, yaw, float(u), float(v), self.name)
 
     def _top_face(self, mask, value, contour):
@@ -372,13 +404,13 @@ class HsvDetector:
         out[y0:y0 + h, x0:x0 + w] = top
         return out, cv2.convexHull(c + np.array([x0, y0], np.int32))
 
-    def _heading(self, mask, hull, hull_m, xy, robot, t_us) -> float:
+    def _heading(self, mask, hull, hull_m, xy, robot, t_us, off) -> float:
         # outline orientation in arena metres, modulo 90 degrees (square) / 180 (oblong)
         (_, _), (rw, rh), ang = cv2.minAreaRect(hull_m * np.float32(1000.0))
         axis = math.radians(ang) if rw >= rh else math.radians(ang + 90.0)
         square = abs(rw - rh) < 0.2 * max(rw, rh)
         cands = [axis + k * math.pi / 2 for k in range(4)] if square else [axis, axis + math.pi]
-        hint = self._mark_direction(mask, hull, xy) if self.front_mark else None
+        hint = self._mark_direction(mask, hull, xy, off) if self.front_mark else None
         hist = self.history_.setdefault(robot, deque())
         hist.append((t_us, xy[0], xy[1]))
         while hist and hist[0][0] < t_us - self.motion_window_us:
@@ -392,7 +424,7 @@ class HsvDetector:
         best = min(cands, key=lambda a: abs(_wrap(a - hint)))
         return _wrap(best)
 
-    def _mark_direction(self, mask, hull, xy) -> float | None:
+    def _mark_direction(self, mask, hull, xy, off) -> float | None:
         """Direction (rad, arena) from the blob centre to the front mark, if one is seen."""
         x0, y0, w, h = cv2.boundingRect(hull)
         filled = np.zeros((h, w), np.uint8)
@@ -405,7 +437,7 @@ class HsvDetector:
         k = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
         if stats[k, cv2.CC_STAT_AREA] < max(3, 0.03 * w * h):
             return None
-        mu, mv = cents[k] + (x0, y0)
+        mu, mv = cents[k] + (x0, y0) + off
         mx, my = self.homography.to_arena(np.array([mu, mv]))
         dx, dy = mx - xy[0], my - xy[1]
         if math.hypot(dx, dy) < 0.01:     # a hole in the middle is not a front mark

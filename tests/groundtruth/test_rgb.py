@@ -153,6 +153,17 @@ def test_hsv_range_sampling_and_parsing():
     assert blue.mask(hsv)[0].tolist() == [0, 255, 0]
 
 
+def test_hsv_finds_a_robot_far_from_where_it_was():
+    """The search starts near the last position, then falls back to the whole frame."""
+    a = World([RobotSpec("r0", COLOURS[0], start=(0.4, 0.4, 0.0))])
+    b = World([RobotSpec("r0", COLOURS[0], start=(1.5, 1.4, 1.0))])
+    ma, mb = WebcamModel(a), WebcamModel(b)
+    det = HsvDetector(sampled_ranges(a, ma), homography_from_calibration(ma.calibration))
+    for world, model in ((a, ma), (b, mb), (a, ma)):
+        (d,) = det.detect(jpeg(model.render()), 0)
+        assert math.hypot(d.x_m - world.pose(0)[0], d.y_m - world.pose(0)[1]) < 0.01
+
+
 def test_hsv_rejects_blobs_of_the_wrong_size():
     w = scene(4, markers=False)
     m = WebcamModel(w)
