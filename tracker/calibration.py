@@ -159,3 +159,49 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CalibrationError(f"{path}: not a readable JSON file ({exc})") from None
     return Calibration.from_dict(data, str(path))
+
+
+def mat_points(side_m: float) -> np.ndarray:
+    """Arena coordinates (m) of the mat corners in the order :func:`find_mat_corners` returns
+    them: bottom-left (origin), bottom-right, top-right, top-left of the image."""
+    return np.array([[0.0, 0.0], [side_m, 0.0], [side_m, side_m], [0.0, side_m]])
+
+
+def find_mat_corners(gray: np.ndarray) -> np.ndarray:
+    """Corners of the mat (the largest bright quadrilateral) in a grayscale image, px.
+
+    Works on a webcam frame (white mats on a darker floor) and on an accumulated event
+    image (robots and noise light up the arena). Returns a (4, 2) array ordered
+    bottom-left, bottom-right, top-right, top-left in the image. Raises
+    :class:`CalibrationError` when no convincing quadrilateral is found.
+    """
+    if gray is None or gray.ndim != 2 or gray.size == 0:
+        raise CalibrationError("expected a non-empty grayscale image")
+    img = cv2.GaussianBlur(gray.astype(np.uint8), (5, 5), 0)
+    _, mask = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    k = max(3, (min(gray.shape) // 60) | 1)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    if not contours:
+        raise CalibrationError("no bright region found: is the mat in view? (or give --points)")
+    c = max(contours, key=cv2.contourArea)
+    area = cv2.contourArea(c)
+    if area < 0.05 * gray.size:
+        raise CalibrationError(f"the largest bright region covers only {100 * area / gray.size:.1f} % of the "
+                               "image: no mat found (give --points)")
+    hull = cv2.convexHull(c)
+    quad = None
+    peri = cv2.arcLength(hull, True)
+    for f in (0.01, 0.02, 0.03, 0.05, 0.08):
+        approx = cv2.approxPolyDP(hull, f * peri, True)
+        if len(approx) == 4:
+            quad = approx.reshape(4, 2).astype(np.float64)
+            break
+    if quad is None:
+        raise CalibrationError("the mat's outline is not a quadrilateral (occluded corner?): give --points")
+    # order: bottom-left, bottom-right, top-right, top-left (v grows downwards)
+    s = quad.sum(1)
+    d = quad[:, 0] - quad[:, 1]
+    tl, br = quad[np.argmin(s)], quad[np.argmax(s)]
+    tr, bl = quad[np.argmax(d)], quad[np.argmin(d)]
+    return np.array([bl, br, tr, tl])

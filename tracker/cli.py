@@ -1,0 +1,268 @@
+"""``arena track`` (offline on a file, or live on Zenoh) and ``arena calibrate``."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+TRACK_EXAMPLES = """\
+Examples:
+  # offline: any recording the edge reads (.raw EVT 2/2.1/3, .dat, .aedat4, the paper's .csv, .npy/.npz)
+  arena track --input rec.raw --calibration calib.json --tracks-out tracks.csv
+  arena track --input rec.aedat4 --calibration lab.toml --tracker idtrack --detector paper \\
+              --tracks-out paper_tracks.csv                 # the paper's method, for comparison
+  arena track --input rec.npz --calibration calib.json --tracks-out t.csv --slice-ms 5 --accumulation-ms 60
+  # live: subscribe arena/events/cam0, publish arena/robots/<id>, answer get('arena/robots/*')
+  arena track --camera cam0 --calibration calib.json
+  arena track --camera cam0 --lab lab.toml --tracks-out live.csv -e tcp/10.0.0.1:7447 -m client
+CSV columns: t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events
+(t_us: time of the pose in the input's clock; arena metres; yaw CCW from +x; empty = unknown)."""
+
+CALIBRATE_EXAMPLES = """\
+Examples:
+  # four (or more) correspondences pixel u,v : arena x,y (m); the sensor size is needed
+  arena calibrate --size 640x480 --points 112,431:0,0 528,431:1.83,0 528,15:1.83,1.83 112,15:0,1.83 -o calib.json
+  # find the mat corners in a webcam frame (bright mat on a darker floor)
+  arena calibrate --image frame.png --arena-size 1.83 -o calib.json
+  # or in the event image accumulated over the first seconds of a recording
+  arena calibrate --events rec.raw --seconds 5 -o calib.json
+The corners found are mapped to the arena with (0,0) at the image's bottom-left mat corner,
+x along the image's bottom edge and y up the image. A preview PNG (grid every 0.25 m) is
+written beside the JSON (--preview to choose its path)."""
+
+
+def _fmt(prog: str) -> argparse.HelpFormatter:
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=34)
+
+
+def _positive_ms(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a duration in ms, got {text!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"duration must be > 0 ms, got {text!r}")
+    return v
+
+
+def register_track(sub) -> None:
+    """Add ``arena track``."""
+    from arena.session import add_zenoh_arguments
+
+    p = sub.add_parser("track", help="detect and track the robots (offline file or live)", formatter_class=_fmt,
+                       description="Detect robots in event windows (DBSCAN), estimate their heading, keep their\n"
+                                   "IDs and map them to arena metres. Offline with --input, live with --camera.",
+                       epilog=TRACK_EXAMPLES)
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--input", metavar="FILE", help="event recording to track offline")
+    src.add_argument("--camera", metavar="NAME", help="live: track arena/events/NAME")
+    p.add_argument("--calibration", metavar="FILE",
+                   help="calibration JSON, or a lab config TOML (its camera's calibration); "
+                        "live mode may take it from --lab")
+    p.add_argument("--tracks-out", metavar="CSV", help="write the tracks here (required offline)")
+    p.add_argument("--tracker", choices=("fleet", "idtrack"), default="fleet",
+                   help="fleet: Kalman + assignment + life cycle (default); idtrack: the paper's Algorithm 1")
+    p.add_argument("--detector", choices=("default", "paper"), default="default",
+                   help="default: physical, adaptive; paper: DBSCAN x3 with the paper's pixel parameters")
+    p.add_argument("--backend", choices=("grid", "sklearn"), default="grid",
+                   help="DBSCAN backend: grid (exact, fast; default) or sklearn (reference)")
+    p.add_argument("--slice-ms", type=_positive_ms, default=10.0, help="offline slice length, ms (default 10)")
+    p.add_argument("--accumulation-ms", type=_positive_ms, default=100.0,
+                   help="accumulation time t_a, ms (default 100, the paper's best)")
+    p.add_argument("--chassis-cm", type=float, default=10.0, help="robot footprint side, cm (default 10)")
+    p.add_argument("--fleet-size", type=int, default=None,
+                   help="number of robots (caps confirmed tracks; live default: the lab config's robots)")
+    p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
+    p.add_argument("--queue", type=int, default=8, help="live: newest slices kept when lagging (default 8)")
+    p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
+    add_zenoh_arguments(p)
+    p.set_defaults(func=run_track)
+
+
+def _load_calibration(path: str | None, camera: str | None = None):
+    from tracker.calibration import CalibrationError, load_calibration
+
+    if not path:
+        raise SystemExit("arena track: --calibration FILE is required (calibration JSON or lab TOML); "
+                         "make one with `arena calibrate`")
+    try:
+        return load_calibration(path, camera)
+    except CalibrationError as exc:
+        raise SystemExit(f"arena track: {exc}") from None
+
+
+def run_track(args) -> int:
+    if args.camera:
+        from tracker.service import run_live
+
+        return run_live(args)
+    return run_offline(args)
+
+
+def run_offline(args) -> int:
+    from arena.formats import FormatError, iter_events
+    from tracker.pipeline import Pipeline, TrackCsvWriter, iter_slices
+
+    if not args.tracks_out:
+        raise SystemExit("arena track: --tracks-out CSV is required with --input")
+    if args.fleet_size is not None and args.fleet_size < 1:
+        raise SystemExit(f"arena track: --fleet-size must be >= 1, got {args.fleet_size}")
+    if not (args.chassis_cm > 0 and math.isfinite(args.chassis_cm)):
+        raise SystemExit(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
+    cal = _load_calibration(args.calibration)
+    w, h = cal.image_size
+    opts = {"width": w, "height": h} if Path(args.input).suffix.lower() in (".csv", ".npy", ".npz") else {}
+    try:
+        reader = iter_events(args.input, **opts)
+    except TypeError:  # this format takes no size option
+        reader = iter_events(args.input)
+    except (FormatError, OSError) as exc:
+        raise SystemExit(f"arena track: {exc}") from None
+    pipe = Pipeline(cal, tracker=args.tracker, detector=args.detector,
+                    accumulation_us=int(round(args.accumulation_ms * 1000)),
+                    chassis_m=args.chassis_cm / 100.0, fleet_size=args.fleet_size, backend=args.backend)
+    slice_us = int(round(args.slice_ms * 1000))
+    n_rows = n_slices = 0
+    t0 = time.perf_counter()
+    try:
+        with reader, open(args.tracks_out, "w", newline="") as fh:
+            if reader.width and reader.height and (reader.width, reader.height) != (w, h):
+                raise SystemExit(f"arena track: {args.input} is {reader.width}x{reader.height} px but the "
+                                 f"calibration is for {w}x{h} px")
+            writer = TrackCsvWriter(fh)
+            for t_end, ev in iter_slices(reader, slice_us):
+                n_rows += writer.write(pipe.push(ev, t_end))
+                n_slices += 1
+    except (FormatError, OSError) as exc:
+        raise SystemExit(f"arena track: {exc}") from None
+    except ValueError as exc:  # events outside the calibrated sensor
+        raise SystemExit(f"arena track: {args.input}: {exc}") from None
+    dt = time.perf_counter() - t0
+    print(f"{n_slices} slices, {n_rows} track rows -> {args.tracks_out} "
+          f"({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice)", file=sys.stderr)
+    return 0
+
+
+# ----------------------------------------------------------------------------- calibrate
+
+
+def _point(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
+    try:
+        px, am = text.split(":")
+        u, v = (float(s) for s in px.split(","))
+        x, y = (float(s) for s in am.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a point is u,v:x,y (pixel px : arena m), got {text!r}") from None
+    return (u, v), (x, y)
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(s) for s in text.lower().split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size is WIDTHxHEIGHT in px, e.g. 640x480; got {text!r}") from None
+    return w, h
+
+
+def register_calibrate(sub) -> None:
+    """Add ``arena calibrate``."""
+    p = sub.add_parser("calibrate", help="make the camera calibration (pixel -> arena metres)",
+                       formatter_class=_fmt,
+                       description="Fit the homography between sensor pixels and arena metres and write the\n"
+                                   "calibration JSON {\"image_size\": [w, h], \"points\": [...]} and a preview PNG.",
+                       epilog=CALIBRATE_EXAMPLES)
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--points", nargs="+", type=_point, metavar="U,V:X,Y", help=">= 4 correspondences")
+    src.add_argument("--image", metavar="PNG", help="a webcam/camera frame showing the whole mat")
+    src.add_argument("--events", metavar="FILE", help="an event recording; its accumulated image is used")
+    p.add_argument("--size", type=_size, metavar="WxH", help="sensor size, px (needed with --points)")
+    p.add_argument("--arena-size", type=float, default=1.83, help="mat side, m (default 1.83)")
+    p.add_argument("--seconds", type=float, default=5.0, help="events accumulated from the start, s (default 5)")
+    p.add_argument("-o", "--output", required=True, metavar="JSON", help="calibration file to write")
+    p.add_argument("--preview", metavar="PNG", help="preview image (default: OUTPUT with .png)")
+    p.set_defaults(func=run_calibrate)
+
+
+def run_calibrate(args) -> int:
+    import cv2
+    import numpy as np
+
+    from tracker.calibration import Calibration, CalibrationError, find_mat_corners, mat_points
+
+    L = args.arena_size
+    if not (L > 0 and math.isfinite(L)):
+        raise SystemExit(f"arena calibrate: --arena-size must be > 0 m, got {L}")
+    image = None
+    try:
+        if args.points:
+            if not args.size:
+                raise SystemExit("arena calibrate: --size WxH is required with --points")
+            cal = Calibration.from_points([p for p, _ in args.points], [a for _, a in args.points], args.size)
+        else:
+            if args.image:
+                image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
+                if image is None:
+                    raise SystemExit(f"arena calibrate: cannot read the image {args.image!r}")
+            else:
+                image = _event_image(args.events, args.seconds)
+            corners = find_mat_corners(image)
+            cal = Calibration.from_points(corners, mat_points(L), (image.shape[1], image.shape[0]))
+    except CalibrationError as exc:
+        raise SystemExit(f"arena calibrate: {exc}") from None
+    cal.save(args.output)
+    preview = args.preview or str(Path(args.output).with_suffix(".png"))
+    if image is None:
+        image = np.full((cal.image_size[1], cal.image_size[0]), 255, np.uint8)
+    cv2.imwrite(preview, _preview(cal, image, L))
+    print(f"wrote {args.output} ({len(cal.pixels)} points, reprojection {1000 * cal.reprojection_error_m():.1f} mm, "
+          f"{cal.px_per_m():.1f} px/m at the centre) and {preview}", file=sys.stderr)
+    return 0
+
+
+def _event_image(path: str, seconds: float):
+    import numpy as np
+
+    from arena.formats import FormatError, iter_events
+
+    try:
+        with iter_events(path) as reader:
+            w, h = reader.width, reader.height
+            if not (w and h):
+                raise SystemExit(f"arena calibrate: {path} does not carry its sensor size; convert it with "
+                                 "`arena convert --size WxH` first")
+            img = np.zeros(h * w, dtype=np.float64)
+            t0 = None
+            for chunk in reader:
+                if chunk.size == 0:
+                    continue
+                t0 = int(chunk["t"][0]) if t0 is None else t0
+                chunk = chunk[chunk["t"] < t0 + seconds * 1e6]
+                np.add.at(img, chunk["y"].astype(np.int64) * w + chunk["x"], 1.0)
+                if chunk.size == 0:
+                    break
+    except (FormatError, OSError) as exc:
+        raise SystemExit(f"arena calibrate: {exc}") from None
+    img = np.log1p(img.reshape(h, w))
+    return (255.0 * img / max(img.max(), 1e-9)).astype(np.uint8)
+
+
+def _preview(cal, gray, L: float):
+    import cv2
+    import numpy as np
+
+    img = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    ticks = np.arange(0.0, L + 1e-9, 0.25)
+    for t in ticks:
+        for a, b in (((t, 0.0), (t, L)), ((0.0, t), (L, t))):
+            pa, pb = cal.to_pixel(np.array([a, b]))
+            cv2.line(img, tuple(int(round(c)) for c in pa), tuple(int(round(c)) for c in pb), (0, 160, 0), 1)
+    for (u, v), (x, y) in zip(cal.pixels, cal.arena_m):
+        cv2.circle(img, (int(round(u)), int(round(v))), 5, (0, 0, 255), 2)
+        cv2.putText(img, f"({x:g},{y:g})", (int(round(u)) + 6, int(round(v)) - 6), cv2.FONT_HERSHEY_SIMPLEX,
+                    0.4, (0, 0, 255), 1)
+    return img
