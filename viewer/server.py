@@ -19,7 +19,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from viewer.state import ViewerState, encode_png
+from viewer.png import encode_indexed_png
+from viewer.state import PALETTE, ViewerState
 
 log = logging.getLogger("arena.viewer")
 
@@ -85,11 +86,11 @@ class _Handler(BaseHTTPRequestHandler):
             name = path[8:]
             self._send(self.server._files[name], _TYPES[name[name.rfind("."):]])
         elif path == "/frame.png":
-            img = self.server.state.render_frame()
-            if img is None:
+            index = self.server.state.render_index()
+            if index is None:
                 self._send(b"no event window received yet", "text/plain", HTTPStatus.SERVICE_UNAVAILABLE)
             else:
-                self._send(encode_png(img), "image/png")
+                self._send(encode_indexed_png(index, PALETTE), "image/png")
         elif path == "/state.json":
             self._send(json.dumps(self.server.state.snapshot()).encode(), "application/json")
         elif path == "/events":
@@ -112,9 +113,10 @@ class _Handler(BaseHTTPRequestHandler):
             while not srv.stopping.is_set():
                 snap = srv.state.snapshot()
                 if snap["counts"]["windows"] != sent_windows:
-                    img = srv.state.render_frame()
-                    if img is not None:
-                        snap["frame"] = "data:image/png;base64," + base64.b64encode(encode_png(img)).decode()
+                    index = srv.state.render_index()
+                    if index is not None:
+                        png = encode_indexed_png(index, PALETTE)
+                        snap["frame"] = "data:image/png;base64," + base64.b64encode(png).decode()
                         sent_windows = snap["counts"]["windows"]
                 data = json.dumps(snap, separators=(",", ":"))
                 self.wfile.write(f"data: {data}\n\n".encode())

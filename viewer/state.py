@@ -23,6 +23,8 @@ from arena.messages import EventWindow, GroundTruthPose, Status, Telemetry, Trac
 ON_RGB = (0, 0, 0)
 OFF_RGB = (0, 0, 255)
 BACKGROUND_RGB = (255, 255, 255)
+#: Colours of the index image of :meth:`ViewerState.render_index`: 0 no event, 1 ON, 2 OFF.
+PALETTE = np.array([BACKGROUND_RGB, ON_RGB, OFF_RGB], np.uint8)
 
 
 class ViewerConfigError(ValueError):
@@ -65,7 +67,7 @@ class _TrackView:
 class _Window:
     t_end_us: int
     msg: EventWindow
-    events: np.ndarray | None = None
+    events: tuple[np.ndarray, np.ndarray] | None = None  # (flat pixel index, palette index), once decoded
 
 
 def _r(v: float | None, nd: int = 4) -> float | None:
@@ -253,35 +255,32 @@ class ViewerState:
                 "counts": dict(self.counts),
             }
 
-    def render_frame(self) -> np.ndarray | None:
-        """The accumulated event image (H x W x 3, RGB uint8): ON black, OFF blue, no event white;
-        None before the first window. Windows are decoded once, on first render."""
+    def render_index(self) -> np.ndarray | None:
+        """The accumulated event image as palette indices (H x W uint8, see :data:`PALETTE`: 0 no
+        event, 1 ON, 2 OFF; the latest event of a pixel wins); None before the first window.
+        Windows are decoded once, on first render."""
         with self._lock:
             if self._size is None:
                 return None
             w, h = self._size
             wins = list(self._windows)
             self.frame_no += 1
-        img = np.empty((h, w, 3), np.uint8)
-        img[:] = BACKGROUND_RGB
-        palette = np.array([OFF_RGB, ON_RGB], np.uint8)  # index = polarity
+        flat = np.zeros(h * w, np.uint8)
         for win in wins:
             if win.events is None:
                 try:
-                    win.events = codec.decode(win.msg.codec, win.msg.data, win.msg.count)
+                    ev = codec.decode(win.msg.codec, win.msg.data, win.msg.count)
+                    ev = ev[(ev["x"] < w) & (ev["y"] < h)]
+                    win.events = (ev["y"].astype(np.intp) * w + ev["x"], 2 - (ev["p"] & 1))
                 except codec.CodecError:
-                    win.events = np.empty(0, codec.EVENT_DTYPE)
+                    win.events = (np.empty(0, np.intp), np.empty(0, np.uint8))
                     self.on_bad()
-            ev = win.events
-            ok = (ev["x"] < w) & (ev["y"] < h)
-            ev = ev[ok]
-            img[ev["y"], ev["x"]] = palette[ev["p"] & 1]  # in time order: the latest event of a pixel wins
-        return img
+            pos, colour = win.events
+            flat[pos] = colour  # in time order: the latest event of a pixel wins
+        return flat.reshape(h, w)
 
-
-def encode_png(img: np.ndarray) -> bytes:
-    """PNG bytes of an RGB image."""
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    if not ok:
-        raise RuntimeError("PNG encoding failed")
-    return buf.tobytes()
+    def render_frame(self) -> np.ndarray | None:
+        """The accumulated event image (H x W x 3, RGB uint8): ON black, OFF blue, no event white;
+        None before the first window."""
+        index = self.render_index()
+        return None if index is None else PALETTE[index]

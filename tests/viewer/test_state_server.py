@@ -18,8 +18,9 @@ from arena.messages import EventWindow, Status, Telemetry, Track
 from tests.conftest import arena_cmd, free_port
 from tests.viewer.feed import CALIBRATION, to_px
 from viewer.server import ViewerServer
-from viewer.state import (BACKGROUND_RGB, OFF_RGB, ON_RGB, ViewerConfigError, ViewerState,
-                          arena_to_pixel_homography, encode_png)
+from viewer.png import encode_indexed_png
+from viewer.state import (BACKGROUND_RGB, OFF_RGB, ON_RGB, PALETTE, ViewerConfigError, ViewerState,
+                          arena_to_pixel_homography)
 
 
 def _win(seq, t_end, x, y, p, t=None, camera="cam0"):
@@ -42,8 +43,8 @@ def test_event_image_colours_last_event_wins_and_accumulation_window():
     st.on_window(_win(2, 45_000, [5], [2], [1]))  # window 0 ends 35 ms before: out of the 30 ms
     img = st.render_frame()
     assert tuple(img[0, 1]) == BACKGROUND_RGB and tuple(img[0, 3]) == OFF_RGB and tuple(img[2, 5]) == ON_RGB
-    png = cv2.imdecode(np.frombuffer(encode_png(img), np.uint8), cv2.IMREAD_COLOR)
-    assert tuple(png[2, 5]) == (0, 0, 0) and tuple(png[0, 3]) == (255, 0, 0)  # BGR: blue
+    png = cv2.imdecode(np.frombuffer(encode_indexed_png(st.render_index(), PALETTE), np.uint8), cv2.IMREAD_COLOR)
+    assert png.shape == (4, 8, 3) and (png[:, :, ::-1] == img).all()  # OpenCV reads our palette PNG as BGR
     st.on_window(_win(0, 10_000, [7], [3], [1]))  # sensor time went back (looping replay): start again
     img = st.render_frame()
     assert tuple(img[2, 5]) == BACKGROUND_RGB and tuple(img[3, 7]) == ON_RGB
