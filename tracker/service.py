@@ -1,0 +1,201 @@
+"""The live tracker: ``arena/events/<camera>`` in, ``arena/robots/<id>`` out.
+
+- Event windows arrive in a bounded zenoh ``RingChannel`` (keeps the newest ``queue``
+  slices, so a lagging tracker drops the oldest and never works on stale data); one worker
+  (the main thread) decodes them with :func:`arena.codec.decode` and feeds the
+  :class:`tracker.pipeline.Pipeline` in time order. A slice that does not decode, does not
+  fit the calibrated sensor or is not newer than the last one is counted and skipped.
+- Every track update is published on ``arena/robots/<id>`` (the robot's name when known,
+  else the track number) as an :class:`arena.messages.Track`; ``get("arena/robots/*")``
+  answers with the current fleet; tracks can also be logged to CSV.
+- Presence and once-a-second status through :class:`arena.service.Service`: counters
+  ``windows_in``, ``windows_bad``, ``windows_late``, ``windows_missed`` (sequence gaps),
+  ``tracks_out``; gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
+  track publish, host clocks).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import zenoh
+
+from arena.codec import CodecError, decode
+from arena.keys import events_key, robot_key
+from arena.messages import EventWindow, MessageError, Track
+from tracker.objects import TrackedRobot
+from tracker.pipeline import Pipeline, TrackCsvWriter
+
+log = logging.getLogger("tracker")
+
+__all__ = ["LiveTracker", "run_live"]
+
+
+def _opt(x: float) -> float | None:
+    return None if x is None or x != x else float(x)
+
+
+class LiveTracker:
+    """Wraps a :class:`Pipeline` for one camera: decode, order checks, track messages.
+
+    Pure apart from the clock it is given: ``handle(payload, now_ns)`` returns the Track
+    messages to publish; the Zenoh wiring is in :func:`run_live`.
+    """
+
+    def __init__(self, pipeline: Pipeline, camera: str, svc=None) -> None:
+        self.pipeline = pipeline
+        self.camera = camera
+        self.svc = svc
+        self.last_seq: int | None = None
+        self.fleet: dict[str, Track] = {}
+        self.lock = threading.Lock()
+        w, h = pipeline.calibration.image_size
+        self.size = (w, h)
+
+    def _count(self, key: str, n: int = 1) -> None:
+        if self.svc is not None:
+            self.svc.count(key, n)
+
+    def _bad(self, key: str, msg: str) -> None:
+        self._count(key)
+        if self.svc is not None:
+            self.svc.error(msg)
+        else:
+            log.warning("%s", msg)
+
+    def handle(self, payload: bytes, now_ns: int) -> list[tuple[str, Track, TrackedRobot]]:
+        """Process one event-window payload; returns ``(key, message, track)`` to publish."""
+        try:
+            win = EventWindow.decode(payload)
+            if win.camera != self.camera:
+                raise MessageError(f"window of camera {win.camera!r} on {self.camera!r}'s key")
+            if (win.width, win.height) != self.size:
+                raise MessageError(f"window is {win.width}x{win.height} px but the calibration is "
+                                   f"{self.size[0]}x{self.size[1]} px")
+            events = decode(win.codec, bytes(win.data), win.count)
+        except (MessageError, CodecError) as exc:
+            self._bad("windows_bad", f"corrupt event window skipped: {exc}")
+            return []
+        last = self.pipeline.last_t_us
+        if last is not None and win.t_end_us <= last:
+            self._bad("windows_late", f"out-of-order window seq {win.seq} (ends {win.t_end_us} µs, "
+                                      f"last {last} µs) skipped")
+            return []
+        if self.last_seq is not None and win.seq > self.last_seq + 1:
+            self._count("windows_missed", win.seq - self.last_seq - 1)
+        self.last_seq = win.seq
+        if events.size and (int(events["t"][0]) < win.t_start_us or int(events["t"][-1]) >= win.t_end_us):
+            self._bad("windows_bad", f"window seq {win.seq} has events outside [t_start, t_end): skipped")
+            return []
+        t0 = time.perf_counter()
+        try:
+            tracks = self.pipeline.push(events, win.t_end_us)
+        except ValueError as exc:
+            self._bad("windows_bad", f"window seq {win.seq} skipped: {exc}")
+            return []
+        self._count("windows_in")
+        if self.svc is not None:
+            self.svc.gauge("process_ms", round((time.perf_counter() - t0) * 1e3, 3))
+        out = []
+        for tr in tracks:
+            msg = Track(track_id=tr.track_id, robot=tr.robot, camera=self.camera, stamp_us=tr.t_us,
+                        x=float(tr.x), y=float(tr.y), yaw=_opt(tr.yaw), vx=_opt(tr.vx), vy=_opt(tr.vy),
+                        u_px=_opt(tr.u), v_px=_opt(tr.v), state=tr.state, n_events=int(tr.n_events),
+                        window_end_us=win.t_end_us, edge_publish_ns=win.publish_ns or None,
+                        tracker_publish_ns=now_ns)
+            out.append((robot_key(tr.robot or tr.track_id), msg, tr))
+        with self.lock:
+            self.fleet = {k: m for k, m, _ in out}
+        return out
+
+
+def run_live(args) -> int:
+    """``arena track --camera NAME``: run until interrupted (or ``--duration`` s)."""
+    from arena.config import ConfigError
+    from arena.service import Service, stop_on_signals
+    from arena.session import SessionError, load_lab_from_args, open_session
+    from tracker.calibration import Calibration, CalibrationError
+    from tracker.cli import _load_calibration
+
+    try:
+        lab = load_lab_from_args(args)
+    except ConfigError as exc:
+        raise SystemExit(f"arena track: {exc}") from None
+    try:
+        events_key(args.camera)
+    except ValueError as exc:
+        raise SystemExit(f"arena track: {exc}") from None
+    if args.calibration:
+        cal = _load_calibration(args.calibration, args.camera)
+    elif lab is not None:
+        try:
+            cam = lab.camera(args.camera)
+            if cam.calibration is None:
+                raise SystemExit(f"arena track: camera {args.camera!r} of {lab.path} has no calibration; "
+                                 "give --calibration FILE")
+            cal = Calibration.from_dict(cam.calibration, f"{lab.path} camera {args.camera}")
+        except (ConfigError, CalibrationError) as exc:
+            raise SystemExit(f"arena track: {exc}") from None
+    else:
+        raise SystemExit("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
+    fleet_size = args.fleet_size if args.fleet_size is not None else ((len(lab.robots) or None) if lab is not None else None)
+    pipe = Pipeline(cal, tracker=args.tracker, detector=args.detector,
+                    accumulation_us=int(round(args.accumulation_ms * 1000)),
+                    chassis_m=args.chassis_cm / 100.0, fleet_size=fleet_size, backend=args.backend)
+    name = args.name or f"tracker-{args.camera}"
+    stop = stop_on_signals()
+    csv_file = open(args.tracks_out, "w", newline="") if args.tracks_out else None
+    writer = TrackCsvWriter(csv_file) if csv_file else None
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        with open_session(args, lab=lab, wait_s=None) as session, Service(session, "tracker", name) as svc:
+            live = LiveTracker(pipe, args.camera, svc)
+            publishers: dict[str, zenoh.Publisher] = {}
+
+            def on_query(query: zenoh.Query) -> None:
+                with live.lock:
+                    fleet = list(live.fleet.items())
+                for key, msg in fleet:
+                    if zenoh.KeyExpr(key).intersects(query.key_expr):
+                        query.reply(key, msg.encode())
+
+            queryable = session.declare_queryable("arena/robots/*", on_query)
+            sub = session.declare_subscriber(events_key(args.camera), zenoh.handlers.RingChannel(max(1, args.queue)))
+            log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(args.camera),
+                     args.tracker, args.detector)
+            try:
+                while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                    sample = sub.try_recv()
+                    if sample is None:
+                        time.sleep(0.001)
+                        continue
+                    out = live.handle(sample.payload.to_bytes(), time.time_ns())
+                    for key, msg, tr in out:
+                        pub = publishers.get(key)
+                        if pub is None:
+                            pub = publishers[key] = session.declare_publisher(key)
+                        msg.tracker_publish_ns = time.time_ns()
+                        pub.put(msg.encode())
+                    if out:
+                        svc.count("tracks_out", len(out))
+                        svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
+                        edge = out[0][1].edge_publish_ns
+                        if edge:
+                            svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
+                        if writer is not None:
+                            writer.write(tr for _, _, tr in out)
+            except KeyboardInterrupt:
+                pass
+            finally:
+                sub.undeclare()
+                queryable.undeclare()
+                for pub in publishers.values():
+                    pub.undeclare()
+    except SessionError as exc:
+        raise SystemExit(f"arena track: {exc}") from None
+    finally:
+        if csv_file is not None:
+            csv_file.close()
+    return 0
