@@ -70,13 +70,13 @@ def _classify(payload: bytes) -> tuple[str, str, bytes, dict | None]:
     kind = d.get("kind")
     if kind == "event_window":
         return kind, "msgpack", payload, d
-    if isinstance(kind, str) and kind in MESSAGE_TYPES:
+    # JSON keeps every type msgpack decodes to here (str keys, int vs float, float64 exactly), so
+    # when re-packing the decoded map gives the payload back, so does re-packing the JSON.
+    if isinstance(kind, str) and kind in MESSAGE_TYPES and msgpack.packb(d, use_bin_type=True) == payload:
         try:
-            text = json.dumps(d, allow_nan=False, separators=(",", ":"))
+            return kind, "json", json.dumps(d, allow_nan=False, separators=(",", ":")).encode(), d
         except (TypeError, ValueError):  # bytes inside, NaN or inf
-            return "", "msgpack", payload, d
-        if msgpack.packb(json.loads(text), use_bin_type=True) == payload:
-            return kind, "json", text.encode(), d
+            pass
     return "", "msgpack", payload, d
 
 
@@ -184,7 +184,8 @@ def _matcher(keys: Iterable[str] | None):
 
 
 def read_run(path: str | os.PathLike, keys: Iterable[str] | None = None) -> Iterator[RecordedMessage]:
-    """Yield the recorded samples of a run in log-time order, with their payloads as published.
+    """Yield the recorded samples of a run in the order they were received (the file's order, which
+    is log-time order unless the host clock stepped back), with their payloads as published.
 
     ``path``: an ``.mcap`` file or a run folder holding one; ``keys``: Zenoh key expressions to keep
     (default: all). Raises :class:`RunFileError` for a missing or unreadable file.
@@ -194,7 +195,7 @@ def read_run(path: str | os.PathLike, keys: Iterable[str] | None = None) -> Iter
     try:
         with open(f, "rb") as stream:
             reader = make_reader(stream)
-            for _schema, channel, message in reader.iter_messages(log_time_order=True):
+            for _schema, channel, message in reader.iter_messages(log_time_order=False):
                 if not match(channel.topic):
                     continue
                 data = message.data

@@ -101,7 +101,7 @@ def replay(session: zenoh.Session, path: str | Path, stop: threading.Event, spee
            keys: Iterable[str] | None = None, loop: bool = False,
            on_message: Callable[[RecordedMessage], None] | None = None) -> ReplayResult:
     """Publish the recorded samples of ``path`` on their original keys with their original payloads,
-    in log-time order, with the recorded spacing divided by ``speed`` (0: as fast as possible).
+    in the order they were received, with the recorded spacing divided by ``speed`` (0: as fast as possible).
     ``loop`` starts again at the end until ``stop`` is set. Publishers block rather than drop when
     the network is congested (a replay is meant to be lossless)."""
     keys = list(keys) if keys else None

@@ -7,10 +7,10 @@ const $ = (id) => document.getElementById(id);
 window.arenaState = null;      // last snapshot, also read by the tests
 window.arenaFrames = 0;        // event images loaded so far
 
-function colour(label) {       // a stable colour per track label
-  let h = 0;
-  for (const c of String(label)) h = (h * 31 + c.charCodeAt(0)) % 360;
-  return `hsl(${h}, 85%, 42%)`;
+function colour(label) {       // a stable colour per track label; labels differing by one
+  let h = 0;                   // character get hues 137.5 degrees apart (golden angle)
+  for (const c of String(label)) h = (h * 31 + c.charCodeAt(0)) % 1000003;
+  return `hsl(${(h * 137.508) % 360}, 85%, 40%)`;
 }
 
 function fmt(v, nd = 2) { return v === null || v === undefined ? "–" : Number(v).toFixed(nd); }
