@@ -166,13 +166,15 @@ class _Track:
                        c + qy * dt * dt]
         self.t_us = int(t_us)
 
-    def coast(self, t_us: int) -> None:
-        """No detection: the robot is at rest (or braking to rest)."""
-        dt = (int(t_us) - self.last_seen_us) * 1e-6
-        decay = math.exp(-max(dt, 0.0) / self.cfg.stop_tau_s)
-        self.ax.v *= decay
-        self.ay.v *= decay
-        self.yaw_rate *= decay
+    def coast(self, t_us: int, moving: bool = False) -> None:
+        """No detection: the robot is at rest (braking to rest), or, when ``moving`` (hidden in
+        another robot's cluster), it keeps its velocity."""
+        if not moving:
+            dt = (int(t_us) - self.last_seen_us) * 1e-6
+            decay = math.exp(-max(dt, 0.0) / self.cfg.stop_tau_s)
+            self.ax.v *= decay
+            self.ay.v *= decay
+            self.yaw_rate *= decay
         self.misses += 1
         self.n_events = 0
         if self.state != TENTATIVE:
@@ -313,7 +315,10 @@ class FleetTracker:
                 unmatched_obs.discard(obs[c])
         for i, tr in enumerate(tracks):
             if i not in matched_tracks:
-                tr.coast(t_us)
+                # hidden in another robot's cluster (crossing, touching): it keeps moving;
+                # otherwise no events means no motion: it brakes to rest
+                merged = any(math.hypot(o.x - tr.ax.p, o.y - tr.ay.p) < cfg.chassis_m for o in observations)
+                tr.coast(t_us, moving=merged)
         # drop tentative tracks that keep missing
         self.tracks = [tr for tr in tracks if not (tr.state == TENTATIVE and tr.misses >= cfg.tentative_max_misses)]
         self._births(observations, sorted(unmatched_obs), t_us)
