@@ -21,6 +21,7 @@ then coded as above; x, y and p are exact. ``raw/1``: the :data:`EVENT_DTYPE` by
 from __future__ import annotations
 
 import struct
+import threading
 
 import numpy as np
 import zstandard
@@ -55,6 +56,7 @@ def _put_varint(buf, n, v):
 
 @njit(cache=True, nogil=True)
 def _encode_planes(xs, ys, ps, ts, t_base, ctrl, low, dt_esc, dy_esc):
+    """Fill the streams; returns the escape stream lengths, or (-1, x) for an x >= 2048."""
     px = np.int64(0)
     py = np.int64(0)
     pp = np.int64(0)
@@ -66,6 +68,8 @@ def _encode_planes(xs, ys, ps, ts, t_base, ctrl, low, dt_esc, dy_esc):
         y = np.int64(ys[i])
         p = np.int64(ps[i]) & 1
         t = ts[i]
+        if x >= 2048:
+            return -1, x
         if t == pt and y == py and p == pp and x > px and i > 0:
             gap = x - px - 1
             ctrl[i] = gap >> 7
@@ -158,6 +162,24 @@ def _decode_planes(ctrl, low, dt_esc, dy_esc, t_base, xs, ys, ps, ts):
     return 0
 
 
+_local = threading.local()
+
+
+def _compressor(level: int) -> zstandard.ZstdCompressor:
+    """A zstd compressor of ``level`` reused within the calling thread (they are not thread-safe)."""
+    cache = _local.__dict__.setdefault("compressors", {})
+    if level not in cache:
+        cache[level] = zstandard.ZstdCompressor(level=level)
+    return cache[level]
+
+
+def _decompressor() -> zstandard.ZstdDecompressor:
+    """A zstd decompressor reused within the calling thread."""
+    if not hasattr(_local, "decompressor"):
+        _local.decompressor = zstandard.ZstdDecompressor()
+    return _local.decompressor
+
+
 def _check(events: np.ndarray) -> np.ndarray:
     if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
         from arena.events import as_events
@@ -184,15 +206,14 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     ts = events["t"]
     if codec == LOSSY_CODEC:
         ts = base + (ts - base) // 1000 * 1000
-    if n and int(events["x"].max()) >= _MAX_X:
-        raise CodecError(f"{codec} codes x < {_MAX_X}; got x = {int(events['x'].max())}")
     ctrl = np.empty(n, np.uint8)
     low = np.empty(n, np.uint8)
     dt_esc = np.empty(n * 10, np.uint8)
     dy_esc = np.empty(n * 3, np.uint8)
-    ndt, ndy = _encode_planes(events["x"], events["y"], events["p"], np.ascontiguousarray(ts), base,
-                              ctrl, low, dt_esc, dy_esc)
-    z = zstandard.ZstdCompressor(level=level)
+    ndt, ndy = _encode_planes(events["x"], events["y"], events["p"], ts, base, ctrl, low, dt_esc, dy_esc)
+    if ndt < 0:
+        raise CodecError(f"{codec} codes x < {_MAX_X}; got x = {ndy}")
+    z = _compressor(level)
     parts = [z.compress(a.data) for a in (ctrl, low, dt_esc[:ndt], dy_esc[:ndy])]
     head = _HEADER.pack(_MAGIC, n, base, ndt, ndy, *(len(p) for p in parts))
     return b"".join([head, *parts])
@@ -222,7 +243,7 @@ def decode(codec: str, data: bytes, count: int, max_events: int = 10_000_000) ->
         raise CodecError(f"{codec} payload is {len(data)} bytes, its header says {_HEADER.size + sum(sizes)}")
     if ndt > 10 * n or ndy > 3 * n:
         raise CodecError(f"{codec} escape streams larger than possible for {n} events")
-    d = zstandard.ZstdDecompressor()
+    d = _decompressor()
     out, pos = [], _HEADER.size
     for size, raw_len in zip(sizes, (n, n, ndt, ndy)):
         try:
@@ -233,16 +254,8 @@ def decode(codec: str, data: bytes, count: int, max_events: int = 10_000_000) ->
             raise CodecError(f"{codec} stream has {len(plane)} bytes, expected {raw_len}")
         out.append(np.frombuffer(plane, np.uint8))
         pos += size
-    xs = np.empty(n, np.uint16)
-    ys = np.empty(n, np.uint16)
-    ps = np.empty(n, np.uint8)
-    ts = np.empty(n, np.int64)
-    err = _decode_planes(out[0], out[1], out[2], out[3], base, xs, ys, ps, ts)
+    ev = np.empty(n, EVENT_DTYPE)
+    err = _decode_planes(out[0], out[1], out[2], out[3], base, ev["x"], ev["y"], ev["p"], ev["t"])
     if err:
         raise CodecError(f"{codec} payload is inconsistent (code {err})")
-    ev = np.empty(n, EVENT_DTYPE)
-    ev["x"] = xs
-    ev["y"] = ys
-    ev["p"] = ps
-    ev["t"] = ts
     return ev
