@@ -167,3 +167,20 @@ def test_reconnects_when_the_live_stream_drops(tmp_path):
         runner.close()
         runner.source.close()
     assert runner.detections == 10
+
+
+def test_runs_from_the_lab_config(tmp_path):
+    """[webcam] gives source, calibration and detector; [[robots]] give names and colours."""
+    w = _world(markers=False)
+    m = WebcamModel(w)
+    (tmp_path / "cal.json").write_text(json.dumps(m.calibration))
+    m.record(tmp_path / "run.avi", seconds=0.5)
+    (tmp_path / "lab.toml").write_text(
+        '[webcam]\nsource = "run.avi"\ncalibration = "cal.json"\ndetector = "hsv"\n\n'
+        '[[robots]]\nname = "zumo1"\ncolor = "#dc2828"\n\n'
+        '[[robots]]\nname = "zumo2"\ncolor = [40, 80, 220]\n')
+    r = subprocess.run([sys.executable, "-m", "groundtruth", "--lab", "lab.toml", "--no-zenoh", "--csv", "gt.csv"],
+                       capture_output=True, text=True, timeout=90, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "hsv detector" in r.stdout and "robots seen: zumo1, zumo2" in r.stdout
+    assert len(list(csv.DictReader(open(tmp_path / "gt.csv")))) == 24
