@@ -135,6 +135,8 @@ def replay(session: zenoh.Session, path: str | Path, stop: threading.Event, spee
                 passes += 1
                 if not loop or n == n_pass:  # nothing to loop over
                     break
+    except KeyboardInterrupt:  # SIGTERM/Ctrl-C through arena.service.stop_on_signals: report what was done
+        pass
     finally:
         for pub in pubs.values():
             pub.undeclare()

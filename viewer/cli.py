@@ -117,7 +117,7 @@ def run(args) -> int:
     try:
         with open_session(args) as session, Service(session, "viewer", name) as svc:
             subs = subscribe(session, state, camera)
-            svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", len(state.snapshot()["tracks"]))))
+            svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count())))
             thread.start()
             print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
             try:

@@ -176,6 +176,12 @@ class ViewerState:
             self.counts["bad"] += 1
 
     # -- outputs ------------------------------------------------------------------------------
+    def track_count(self) -> int:
+        """Number of tracks currently shown (updated within the last ``track_timeout_s``)."""
+        now = time.monotonic()
+        with self._lock:
+            return sum(1 for t in self._tracks.values() if now - t.seen <= self.track_timeout_s)
+
     def _pixel(self, x: float, y: float, u: float | None, v: float | None) -> tuple[float, float] | None:
         if u is not None and v is not None:
             return (round(u, 1), round(v, 1))

@@ -180,3 +180,28 @@ def test_replay_keeps_the_recorded_pace(router, tmp_path):
     assert len(stamps) == 5
     span = stamps[-1] - stamps[0]
     assert 0.3 < span < 0.9, span  # 0.8 s recorded at 2x = 0.4 s
+
+
+def test_replay_loop_stops_cleanly_on_sigterm(router, tmp_path):
+    path = tmp_path / "loop.mcap"
+    with RunWriter(path) as w:
+        for i in range(10):
+            w.add("arena/robots/a", Track(track_id=1, stamp_us=i).encode(), 1_000_000_000 + i * 50_000_000)
+    got = []
+    with open_session(ZenohSettings(mode="peer", connect=[router.endpoint])) as s:
+        s.declare_subscriber("arena/robots/a", lambda sample: got.append(1))
+        proc = subprocess.Popen(arena_cmd("replay", str(path), "--loop", "--start-delay", "0.5", *router.args),
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            wait_for_line(proc, "in a loop", timeout=60)
+            deadline = time.monotonic() + 20
+            while len(got) < 15 and time.monotonic() < deadline:  # more than one pass of 10
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGTERM)
+            out = proc.communicate(timeout=15)[0]
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert len(got) >= 15
+    assert proc.returncode == 0 and "replayed" in out and "1 pass" in out, out
