@@ -136,7 +136,7 @@ class ViewerState:
                 tv = self._tracks[key] = _TrackView(msg, now)
             tv.msg, tv.seen = msg, now
             tv.trail_m.append((round(msg.x, 4), round(msg.y, 4)))
-            uv = self._pixel(msg.x, msg.y, msg.u_px, msg.v_px)
+            uv = self._track_pixel(msg)
             if uv is not None:
                 tv.trail_px.append(uv)
 
@@ -190,6 +190,12 @@ class ViewerState:
             return (round(float(uv[0]), 1), round(float(uv[1]), 1))
         return None
 
+    def _track_pixel(self, m: Track) -> tuple[float, float] | None:
+        """Pixel of a track in the viewed camera: its own ``u_px``/``v_px`` when it comes from that
+        camera, else projected from arena metres."""
+        own = not m.camera or self.camera is None or m.camera == self.camera
+        return self._pixel(m.x, m.y, m.u_px if own else None, m.v_px if own else None)
+
     def _box_px(self, x: float, y: float, yaw: float | None, uv: tuple[float, float]) -> list | None:
         """Corners (px) of the robot's footprint; with no calibration, None."""
         if self.H is None:
@@ -220,7 +226,7 @@ class ViewerState:
             tracks = []
             for key, tv in sorted(self._tracks.items()):
                 m = tv.msg
-                uv = self._pixel(m.x, m.y, m.u_px, m.v_px)
+                uv = self._track_pixel(m)
                 speed = math.hypot(m.vx, m.vy) if m.vx is not None and m.vy is not None else None
                 tracks.append({
                     "key": key, "id": m.track_id, "robot": m.robot, "label": m.robot or f"#{m.track_id}",
@@ -235,7 +241,8 @@ class ViewerState:
                 if now - seen > self.track_timeout_s:
                     continue
                 gts.append({"robot": robot, "x": _r(g.x), "y": _r(g.y), "yaw": _r(g.yaw), "detector": g.detector,
-                            "uv": list(self._pixel(g.x, g.y, g.u_px, g.v_px) or []) or None})
+                            # the pose's own u_px/v_px are the webcam's: project the metres instead
+                            "uv": list(self._pixel(g.x, g.y, None, None) or []) or None})
             telemetry = {r: {k: list(v) for k, v in h.items()} for r, h in sorted(self._telemetry.items())}
             services = []
             for role, name in sorted(set(self._status) | self._alive):

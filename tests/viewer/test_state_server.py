@@ -14,7 +14,7 @@ import pytest
 
 from arena import codec
 from arena.events import make_events
-from arena.messages import EventWindow, Status, Telemetry, Track
+from arena.messages import EventWindow, GroundTruthPose, Status, Telemetry, Track
 from tests.conftest import arena_cmd, free_port
 from tests.viewer.feed import CALIBRATION, to_px
 from viewer.server import ViewerServer
@@ -142,3 +142,13 @@ def test_cli_errors_are_clear(tmp_path):
         s.listen()
         r = subprocess.run(arena_cmd("view", "--port", str(port)), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--port 0" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_pixels_of_other_cameras_are_not_used():
+    H = arena_to_pixel_homography(CALIBRATION)
+    st = ViewerState(camera="cam0", H_arena_to_px=H)
+    st.on_track("arena/robots/a", Track(track_id=1, camera="cam1", x=1.0, y=0.5, u_px=1.0, v_px=2.0))
+    st.on_groundtruth(GroundTruthPose(robot="a", stamp_us=0, x=1.0, y=0.5, u_px=900.0, v_px=700.0, detector="aruco"))
+    snap = st.snapshot()
+    assert snap["tracks"][0]["uv"] == pytest.approx(to_px(1.0, 0.5), abs=0.2)  # projected, not cam1's pixel
+    assert snap["groundtruth"][0]["uv"] == pytest.approx(to_px(1.0, 0.5), abs=0.2)  # not the webcam's pixel
