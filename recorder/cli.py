@@ -24,10 +24,12 @@ def register_record(sub) -> None:
         "record", help="record arena messages into an MCAP file (Foxglove, ROS 2 tooling)",
         formatter_class=_formatter,
         description="Subscribe to arena messages and write them into an MCAP file: one channel per key,\n"
-                    "tracks/telemetry/ground truth/status/commands as JSON with a JSON schema (Foxglove\n"
-                    "shows them), event windows as their msgpack bytes (lossless). Log time = receive\n"
-                    "time, publish time = the sender's time when the message has one. Stops at the end\n"
-                    "of --duration, on Ctrl-C or SIGTERM, and always finishes the file.",
+                    "tracks/telemetry/ground truth/status as JSON with a JSON schema (Foxglove shows\n"
+                    "them), event windows as their msgpack bytes (lossless). Log time = receive time,\n"
+                    "publish time = the sender's time when the message has one. Stops at the end of\n"
+                    "--duration, on Ctrl-C or SIGTERM, and always finishes the file. Commands to robots\n"
+                    "are Zenoh queries, not publications: they are not recorded.\n"
+                    "Exit status: 0, or 1 when samples were dropped (write queue full), 2 on errors.",
         epilog="Examples:\n"
                "  arena record run.mcap                                # everything, until Ctrl-C\n"
                "  arena record run.mcap --duration 30\n"

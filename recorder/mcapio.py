@@ -5,7 +5,8 @@ Layout (profile ``arena``; library ``arena-recorder``):
 * one channel per Zenoh key (the MCAP topic is the key, e.g. ``arena/robots/zumo1``);
 * event windows (``kind`` = ``event_window``): message encoding ``msgpack``, schema
   ``arena.EventWindow`` (self-describing, empty schema data): the payload bytes exactly as published;
-* every other arena message: message encoding ``json`` with a JSON schema per kind
+* every other arena message (commands and replies too, if a sender publishes them; the robot
+  commands themselves are Zenoh queries, which a subscriber does not see): message encoding ``json`` with a JSON schema per kind
   (``arena.Track``, ``arena.Telemetry``, ...), so Foxglove Studio shows the fields;
 * log time = receive time (host wall clock, ns); publish time = the sender's own time when the
   message carries one (``publish_ns``, ``tracker_publish_ns``, ``host_time_ns``, ``time_ns``),
