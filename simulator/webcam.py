@@ -148,8 +148,8 @@ class WebcamModel:
         position at shell-top height (``height_m``): the homography a detector of shell
         tops or markers should use. ``floor_points`` gives the same corners at floor height
         (``z = 0``, what one clicks on the mats). Using the floor homography for shell tops
-        shifts positions by ``height_m / camera_height * distance_from_nadir``, about
-        1.8 cm for a 4.5 cm shell 1 m from the point under a 2.45 m-high camera.
+        shifts positions by ``height_m / (camera_height - height_m) * distance_from_nadir``,
+        about 1.9 cm for a 4.5 cm shell 1 m from the point under a 2.45 m-high camera.
         """
         a = self.arena_m
         xy = np.array([[0, 0], [a, 0], [a, a], [0, a]], float)
@@ -183,9 +183,10 @@ class WebcamModel:
         n = int(round((a + 2 * margin) / res))
         rng = np.random.default_rng(self._seed + 1)
         # floor (grey concrete), mats (off-white foam with grain)
+        grain = cv2.GaussianBlur(rng.normal(0, 1, (n, n)).astype(np.float32), (0, 0), 1.5)
         tex = np.empty((n, n, 3), np.float32)
         tex[:] = (118, 124, 128)
-        grain = cv2.GaussianBlur(rng.normal(0, 1, (n, n)).astype(np.float32), (0, 0), 1.5)
+        tex += 6.0 * grain[..., None]
         lo, hi = int(round(margin / res)), int(round((margin + a) / res))
         mats = np.empty((hi - lo, hi - lo, 3), np.float32)
         mats[:] = (226, 232, 234)
@@ -196,12 +197,11 @@ class WebcamModel:
             for j in range(tiles):
                 mats[int(i * step):int((i + 1) * step), int(j * step):int((j + 1) * step)] += tile_rng[i, j]
         mats += 4.0 * grain[lo:hi, lo:hi, None]
-        for k in range(1, tiles):        # faint seams between tiles (~3 mm, a bit darker)
+        for k in range(1, tiles):        # faint seams between tiles (5 mm, a bit darker)
             s = int(round(k * step))
             mats[s - 1:s + 1, :] -= 28
             mats[:, s - 1:s + 1] -= 28
         tex[lo:hi, lo:hi] = mats
-        tex[:lo] += 6 * grain[:lo, :, None]
         # texture pixel (col, row) -> arena (x, y): x = -margin + col*res, y = a + margin - row*res
         t2a = np.array([[res, 0, -margin], [0, -res, a + margin], [0, 0, 1]])
         h = self.plane_homography(0.0) @ t2a
