@@ -177,6 +177,8 @@ def find_mat_corners(gray: np.ndarray) -> np.ndarray:
     """
     if gray is None or gray.ndim != 2 or gray.size == 0:
         raise CalibrationError("expected a non-empty grayscale image")
+    if float(gray.std()) < 2.0:
+        raise CalibrationError("the image has no contrast: no mat found (give --points)")
     img = cv2.GaussianBlur(gray.astype(np.uint8), (5, 5), 0)
     _, mask = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
     k = max(3, (min(gray.shape) // 60) | 1)
@@ -189,6 +191,9 @@ def find_mat_corners(gray: np.ndarray) -> np.ndarray:
     if area < 0.05 * gray.size:
         raise CalibrationError(f"the largest bright region covers only {100 * area / gray.size:.1f} % of the "
                                "image: no mat found (give --points)")
+    if area > 0.97 * gray.size:
+        raise CalibrationError("the bright region fills the whole image: the mat's edges are not in view "
+                               "(give --points)")
     hull = cv2.convexHull(c)
     quad = None
     peri = cv2.arcLength(hull, True)
