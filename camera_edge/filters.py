@@ -38,6 +38,25 @@ class EventFilter:
         raise NotImplementedError
 
 
+@njit(cache=True, nogil=True)
+def _lookup(xs, ys, mask, keep, want):
+    """keep[i] = (mask[y, x] == want) for each event."""
+    for i in range(xs.size):
+        keep[i] = mask[ys[i], xs[i]] == want
+
+
+def _select(events: np.ndarray, mask: np.ndarray, want: bool) -> np.ndarray:
+    keep = np.empty(events.size, np.bool_)
+    _lookup(events["x"], events["y"], mask, keep, want)
+    return events[keep]
+
+
+@njit(cache=True, nogil=True)
+def _count_pixels(xs, ys, width, counts):
+    for i in range(xs.size):
+        counts[np.int64(ys[i]) * width + xs[i]] += 1
+
+
 class HotPixelFilter(EventFilter):
     """Remove hot pixels.
 
@@ -107,8 +126,7 @@ class HotPixelFilter(EventFilter):
                 self._t0 = int(events["t"][0])
             end = self._t0 + self.learn_us
             k = int(np.searchsorted(events["t"], end))
-            addr = events["y"][:k].astype(np.int64) * self.width + events["x"][:k]
-            self._counts += np.bincount(addr, minlength=self._counts.size)
+            _count_pixels(events["x"][:k], events["y"][:k], self.width, self._counts)
             if k == events.size:
                 return events
             rate = self._counts / (self.learn_us / 1e6)
@@ -116,8 +134,8 @@ class HotPixelFilter(EventFilter):
             thr = max(self.min_rate_hz, self.factor * (active.mean() if active.size else 0.0))
             hot = np.flatnonzero(rate > thr)
             self._set(np.column_stack([hot % self.width, hot // self.width]))
-            return np.concatenate([events[:k], events[k:][~self.mask_[events["y"][k:], events["x"][k:]]]])
-        return events[~self.mask_[events["y"], events["x"]]]
+            return np.concatenate([events[:k], _select(events[k:], self.mask_, False)])
+        return _select(events, self.mask_, False)
 
 
 @njit(cache=True, nogil=True)
@@ -189,4 +207,4 @@ class RoiFilter(EventFilter):
         return cls(int(w), int(h), hull, margin_px)
 
     def _apply(self, events: np.ndarray) -> np.ndarray:
-        return events[self.mask_[events["y"], events["x"]]]
+        return _select(events, self.mask_, True)
