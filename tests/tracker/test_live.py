@@ -1,0 +1,99 @@
+"""`arena track --camera`: real Zenoh through a router; corrupt and late windows are skipped."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from arena.codec import encode
+from arena.messages import EventWindow, Status, Track, decode
+from arena.session import open_session
+from tests.conftest import arena_cmd
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+def _wait_alive(session, key: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if any(r.ok for r in session.liveliness().get(key, timeout=1.0)):
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"{key} never appeared")
+
+
+@pytest.mark.slow
+def test_live_tracker_publishes_tracks_answers_get_and_survives_bad_windows(router, tmp_path):
+    from simulator.scenarios import Scenario, generate
+
+    rec = generate(Scenario(n_robots=2, pattern="circle", power=1.0, duration_s=2.0, seed=7))
+    (tmp_path / "calib.json").write_text(json.dumps(rec.calibration))
+    log_csv = tmp_path / "live.csv"
+    tracks: list[Track] = []
+    statuses: list[Status] = []
+    lock = threading.Lock()
+
+    def on_track(sample):
+        with lock:
+            tracks.append(decode(bytes(sample.payload)))
+
+    def on_status(sample):
+        with lock:
+            statuses.append(decode(bytes(sample.payload)))
+
+    with open_session(router.settings("client")) as s:
+        s.declare_subscriber("arena/robots/*", on_track)
+        s.declare_subscriber("arena/status/tracker/tracker-cam0", on_status)
+        proc = subprocess.Popen(arena_cmd("track", "--camera", "cam0", "--calibration", str(tmp_path / "calib.json"),
+                                          "--tracks-out", str(log_csv), "--queue", "64", "-m", "client",
+                                          *router.args), env=ENV, text=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            _wait_alive(s, "arena/alive/tracker/tracker-cam0")
+            time.sleep(0.5)
+            pub = s.declare_publisher("arena/events/cam0")
+            ev = rec.events
+            seq = 0
+            for k in range(200):
+                t0, t1 = k * 10_000, (k + 1) * 10_000
+                sl = ev[(ev["t"] >= t0) & (ev["t"] < t1)]
+                win = EventWindow(camera="cam0", seq=seq, t_start_us=t0, t_end_us=t1, width=rec.width,
+                                  height=rec.height, count=sl.size, codec="planes-zstd/1", data=encode(sl),
+                                  publish_ns=time.time_ns())
+                pub.put(win.encode())
+                seq += 1
+                if k == 100:
+                    pub.put(b"\x93not a window")                                   # garbage
+                    bad = EventWindow(**{**win.__dict__, "seq": seq, "data": win.data[:-7]})
+                    pub.put(bad.encode())                                          # truncated payload
+                    late = EventWindow(**{**win.__dict__, "seq": seq})
+                    pub.put(late.encode())                                         # not newer
+                time.sleep(0.004)
+            time.sleep(1.5)
+            replies = [r.ok for r in s.get("arena/robots/*", timeout=5.0) if r.ok is not None]
+            time.sleep(1.2)  # one more status period
+            assert proc.poll() is None, "the tracker died"
+        finally:
+            proc.terminate()
+            _, err = proc.communicate(timeout=20)
+    with lock:
+        got = list(tracks)
+        st = list(statuses)
+    assert len(got) > 150, err
+    late_ids = {m.track_id for m in got if m.window_end_us > 1_500_000 and m.state == "confirmed"}
+    assert len(late_ids) == 2
+    m = got[-1]
+    assert m.camera == "cam0" and 0 < m.x < 1.83 and 0 < m.y < 1.83 and m.edge_publish_ns and m.tracker_publish_ns
+    fleet = [decode(bytes(r.payload)) for r in replies]
+    assert {f.track_id for f in fleet} == late_ids
+    assert {str(r.key_expr) for r in replies} == {f"arena/robots/{i}" for i in late_ids}
+    last = st[-1]
+    assert last.counters.get("windows_bad", 0) >= 2 and last.counters.get("windows_late", 0) >= 1
+    assert last.counters.get("windows_in", 0) >= 190
+    assert log_csv.read_text().startswith("t_us,track_id,robot,x_m,y_m,yaw_rad")
