@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import subprocess
+import socket
 import threading
 import urllib.error
 import urllib.request
@@ -15,7 +15,7 @@ import pytest
 from arena import codec
 from arena.events import make_events
 from arena.messages import EventWindow, GroundTruthPose, Status, Telemetry, Track
-from tests.conftest import arena_cmd, free_port
+from arena.cli import main
 from tests.viewer.feed import CALIBRATION, to_px
 from viewer.server import ViewerServer
 from viewer.png import encode_indexed_png
@@ -121,27 +121,28 @@ def test_server_routes_and_event_stream():
         srv.server_close()
 
 
-def test_cli_errors_are_clear(tmp_path):
-    r = subprocess.run(arena_cmd("view", "--camera", "cam/0"), capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "--camera" in r.stderr and "Traceback" not in r.stderr
+def test_cli_errors_are_clear(tmp_path, capsys):
+    def view(*args: str) -> tuple[int, str]:
+        rc = main(["view", *args])
+        return rc, capsys.readouterr().err
+
+    rc, err = view("--camera", "cam/0")
+    assert rc == 2 and "--camera" in err
     lab = tmp_path / "lab.toml"
     lab.write_text('[[cameras]]\nname = "cam0"\ncalibration = "missing.json"\n')
-    r = subprocess.run(arena_cmd("view", "--lab", str(lab)), capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "missing.json" in r.stderr and "Traceback" not in r.stderr
-    r = subprocess.run(arena_cmd("view", "--calibration", str(tmp_path / "nope.json")), capture_output=True,
-                       text=True, timeout=60)
-    assert r.returncode == 2 and "nope.json" in r.stderr and "Traceback" not in r.stderr
+    rc, err = view("--lab", str(lab))
+    assert rc == 2 and "missing.json" in err
+    rc, err = view("--calibration", str(tmp_path / "nope.json"))
+    assert rc == 2 and "nope.json" in err
     bad = tmp_path / "bad.json"
     bad.write_text('{"points": []}')
-    r = subprocess.run(arena_cmd("view", "--calibration", str(bad)), capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "at least 4" in r.stderr and "Traceback" not in r.stderr
-    import socket
+    rc, err = view("--calibration", str(bad))
+    assert rc == 2 and "at least 4" in err
     with socket.socket() as s:
-        port = free_port()
-        s.bind(("127.0.0.1", port))
+        s.bind(("127.0.0.1", 0))
         s.listen()
-        r = subprocess.run(arena_cmd("view", "--port", str(port)), capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "--port 0" in r.stderr and "Traceback" not in r.stderr
+        rc, err = view("--port", str(s.getsockname()[1]))
+    assert rc == 2 and "--port 0" in err
 
 
 def test_pixels_of_other_cameras_are_not_used():
