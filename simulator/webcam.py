@@ -77,17 +77,24 @@ class WebcamModel:
         noise: sensor noise on (Gaussian, sigma from the lighting level).
         shell_height_m: height of the shell tops (and markers) above the mats, m.
         marker_size_m: side of the black ArUco square (6 x 6 cells with its border), m.
+        flicker_hz, flicker_depth: ceiling light ripple (as in the event sensor model):
+            intensity ``1 + depth * sin(2 pi f t)`` averaged over each exposure, so frames
+            brighten and darken a few % from one to the next.
         seed: seed of the background grain and the sensor noise.
     """
 
     def __init__(self, world, width: int = 640, height: int = 480, fps: float = 24.0,
                  homography: np.ndarray | None = None, blur: bool = True, noise: bool = True,
-                 shell_height_m: float = 0.045, marker_size_m: float = 0.075, seed: int = 0):
+                 shell_height_m: float = 0.045, marker_size_m: float = 0.075,
+                 flicker_hz: float = 0.0, flicker_depth: float = 0.2, seed: int = 0):
         if width < 64 or height < 48:
             raise ValueError(f"image size must be at least 64x48 px, got {width}x{height}")
         if fps <= 0:
             raise ValueError(f"fps must be > 0, got {fps}")
+        if flicker_hz < 0 or not 0 <= flicker_depth < 1:
+            raise ValueError("flicker must be >= 0 Hz with a depth in [0, 1)")
         self.world = world
+        self.flicker_hz, self.flicker_depth = float(flicker_hz), float(flicker_depth)
         self.width, self.height = int(width), int(height)
         self.fps = float(fps)
         self.blur, self.noise = bool(blur), bool(noise)
@@ -337,6 +344,11 @@ class WebcamModel:
                 patch = (acc * (1.0 / k) + 0.5).astype(np.uint8)
             img[v0:v1, u0:u1] = patch
         img = cv2.GaussianBlur(img, (3, 3), 0.6)
+        if self.flicker_hz > 0:
+            # mean of sin(2 pi f t') over the exposure centred on t: sin(2 pi f t) * sinc(f e)
+            x = math.pi * self.flicker_hz * exposure
+            ripple = math.sin(2 * math.pi * self.flicker_hz * t) * math.sin(x) / x
+            img = cv2.convertScaleAbs(img, alpha=1.0 + self.flicker_depth * ripple)
         if self.noise:
             bank = self._noise(lighting)
             dy, dx = self._rng.integers(0, 64, 2)

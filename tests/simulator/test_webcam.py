@@ -147,3 +147,18 @@ def test_record_writes_a_readable_video(tmp_path):
         n += 1
     cap.release()
     assert n == 12
+
+
+def test_light_flicker_changes_brightness_between_frames():
+    w = _world("full")          # 8 ms exposure (dimmed: 20 ms = 2 periods, no ripple, like anti-flicker)
+    m = WebcamModel(w, noise=False, flicker_hz=100.0, flicker_depth=0.3)
+    steady = WebcamModel(w, noise=False)
+    means, ref = [], []
+    for _ in range(6):
+        w.step(1 / 24)
+        means.append(m.render().mean())
+        ref.append(steady.render().mean())
+    assert np.ptp(ref) < 0.5                                    # static scene, steady light
+    assert np.ptp(means) > 1.0                                  # flicker: frame-to-frame ripple
+    with pytest.raises(ValueError, match="flicker"):
+        WebcamModel(w, flicker_hz=-1)
