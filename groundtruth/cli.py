@@ -157,6 +157,8 @@ def register_groundtruth(sub) -> None:
                "  arena groundtruth --video run.avi --calibration webcam_calib.json --detector hsv \\\n"
                "      --robot zumo1=red --robot zumo2=#2850dc --no-zenoh --csv gt.csv --annotate ann.avi\n"
                "  arena groundtruth --video run.avi --sample-hsv 320,240   # print the HSV range there\n"
+               "  arena groundtruth --video 0 --calibrate-out webcam_calib.json \\\n"
+               "      --at 0=0.10,0.10 --at 1=1.73,0.10 --at 2=1.73,1.73 --at 3=0.10,1.73\n"
                "  arena groundtruth --lab deploy/lab.toml --csv gt.csv\n"
                "Exit code 0 when the source ends or on Ctrl-C, 2 for bad input.")
     p.add_argument("--video", metavar="SRC", help="device index, video file or URL (default: lab [webcam] source)")
@@ -178,6 +180,13 @@ def register_groundtruth(sub) -> None:
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
     p.add_argument("--sample-hsv", metavar="U,V",
                    help="print the HSV range around pixel U,V of the first frame (for the lab config) and exit")
+    c = p.add_argument_group("calibrate at shell height from markers at known spots (then exit)")
+    c.add_argument("--calibrate-out", metavar="JSON", help="write the calibration JSON here")
+    c.add_argument("--at", metavar="ID=X,Y", action="append", default=[],
+                   help="marker ID lies at arena X,Y metres (its centre), repeatable, >= 4 spread out")
+    c.add_argument("--height-m", type=float, default=0.045,
+                   help="height of the markers above the mats, m (default 0.045, the shell tops)")
+    c.add_argument("--calib-frames", type=int, default=24, help="frames to average (default 24)")
     add_zenoh_arguments(p)
     p.set_defaults(func=run_groundtruth)
 
@@ -245,6 +254,8 @@ def run_groundtruth(args: argparse.Namespace) -> int:
                 return fail(f"--sample-hsv: {exc}")
             print(f"hsv_range = [[{', '.join(map(str, rng.lo))}], [{', '.join(map(str, rng.hi))}]]")
             return 0
+        if args.calibrate_out:
+            return _calibrate(args, source)
         calib = args.calibration or (cam.calibration_file or cam.calibration if cam else None)
         if calib is None:
             return fail("no calibration: give --calibration FILE|URL or a lab [webcam] calibration")
@@ -256,6 +267,37 @@ def run_groundtruth(args: argparse.Namespace) -> int:
         except (CalibrationError, SetupError) as exc:
             return fail(str(exc))
         return _run_loop(args, lab, source, detector)
+
+
+def _calibrate(args, source) -> int:
+    import itertools
+
+    from groundtruth.service import SetupError, marker_calibration
+
+    try:
+        at = {}
+        for a in args.at:
+            i, sep, xy = a.partition("=")
+            x, y = (float(v) for v in xy.split(","))
+            if not sep or not i.strip().isdigit():
+                raise ValueError
+            at[int(i)] = (x, y)
+    except ValueError:
+        print(f"arena groundtruth: --at expects ID=X,Y (e.g. 0=0.10,0.10), got {args.at}", file=sys.stderr)
+        return 2
+    frames = (f for _, f in itertools.islice(iter(source.read, None), max(1, args.calib_frames)))
+    try:
+        h, px, xy = marker_calibration(frames, at, args.height_m)
+    except SetupError as exc:
+        print(f"arena groundtruth: {exc}", file=sys.stderr)
+        return 2
+    from groundtruth.homography import save_calibration
+
+    save_calibration(args.calibrate_out, px, xy, h.image_size, args.height_m, camera="webcam")
+    err = h.reprojection_error_m(px, xy) * 100
+    print(f"calibration written to {args.calibrate_out} ({len(px)} markers at {args.height_m} m, "
+          f"residual max {err.max():.2f} cm)")
+    return 0
 
 
 def _run_loop(args, lab, source, detector) -> int:

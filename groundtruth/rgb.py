@@ -452,13 +452,14 @@ class MarkerDetector:
 
     Args:
         ids: marker id -> robot name; ``None`` reports every id as ``"marker<id>"``.
-        homography: pixel -> arena at marker height (the shell top).
+        homography: pixel -> arena at marker height (the shell top); ``None`` for pixel
+            measurements only (:meth:`centres_px`, e.g. to calibrate).
         dictionary: an OpenCV predefined dictionary id (default ``DICT_4X4_50``).
     """
 
     name = "aruco"
 
-    def __init__(self, ids: dict[int, str] | None, homography: Homography,
+    def __init__(self, ids: dict[int, str] | None, homography: Homography | None,
                  dictionary: int = cv2.aruco.DICT_4X4_50):
         self.ids = None if ids is None else {int(k): str(v) for k, v in ids.items()}
         self.homography = homography
@@ -468,23 +469,38 @@ class MarkerDetector:
         params.minMarkerPerimeterRate = 0.02
         self._det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(dictionary), params)
 
-    def detect(self, frame: np.ndarray, t_us: int) -> list[Detection]:
-        """Detect configured markers in a BGR frame captured at ``t_us`` (µs)."""
+    def corners_px(self, frame: np.ndarray) -> list[tuple[int, np.ndarray]]:
+        """Every marker in a BGR frame as ``(id, corners)``, corners (4, 2) px in the order
+        top-left, top-right, bottom-right, bottom-left of the marker image."""
         _check_frame(frame)
-        gray = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-        corners, ids, _ = self._det.detectMarkers(gray)
-        out: dict[str, Detection] = {}
+        corners, ids, _ = self._det.detectMarkers(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
         if ids is None:
             return []
-        for c, i in zip(corners, ids.ravel()):
-            i = int(i)
+        return [(int(i), c.reshape(4, 2).astype(float)) for c, i in zip(corners, ids.ravel())]
+
+    def centres_px(self, frame: np.ndarray) -> dict[int, tuple[float, float]]:
+        """Image centre (u, v) px of each marker id: the intersection of the diagonals, which
+        is the projection of the marker's centre under any perspective."""
+        out = {}
+        for i, c in self.corners_px(frame):
+            h = np.column_stack([c, np.ones(4)])
+            p = np.cross(np.cross(h[0], h[2]), np.cross(h[1], h[3]))
+            if abs(p[2]) > 1e-12 and i not in out:
+                out[i] = (float(p[0] / p[2]), float(p[1] / p[2]))
+        return out
+
+    def detect(self, frame: np.ndarray, t_us: int) -> list[Detection]:
+        """Detect configured markers in a BGR frame captured at ``t_us`` (µs)."""
+        if self.homography is None:
+            raise ValueError("MarkerDetector.detect needs a homography (pixel -> arena)")
+        out: dict[str, Detection] = {}
+        for i, px in self.corners_px(frame):
             if self.ids is None:
                 robot = f"marker{i}"
             elif i in self.ids:
                 robot = self.ids[i]
             else:
                 continue
-            px = c.reshape(4, 2).astype(float)
             xy = self.homography.to_arena(px)
             x, y = xy.mean(0)
             front = 0.5 * (xy[0] + xy[1]) - 0.5 * (xy[2] + xy[3])

@@ -108,6 +108,42 @@ def build_detector(kind: str, homography: Homography, robots=(), markers: dict[i
     return HsvDetector(ranges, homography, shell_size_m=size, front_mark=front_mark)
 
 
+def marker_calibration(frames, at: dict[int, tuple[float, float]], height_m: float,
+                       min_seen: float = 0.5) -> tuple[Homography, np.ndarray, np.ndarray]:
+    """Calibrate at marker height from ArUco markers placed at known arena positions.
+
+    Put >= 4 markers (e.g. robots with their marker, or printed markers raised to shell
+    height) at known spots spread over the arena, ``at`` = {marker id: (x, y) m}. The median
+    image centre of each marker over ``frames`` (BGR images) pairs with its position.
+    Returns ``(homography, pixels (n, 2), arena_m (n, 2))``. Raises :class:`SetupError`
+    naming the markers seen in fewer than ``min_seen`` of the frames.
+    """
+    if len(at) < 4:
+        raise SetupError(f"need at least 4 markers at known positions, got {len(at)}")
+    det = MarkerDetector(None, None)
+    seen: dict[int, list] = {i: [] for i in at}
+    n = 0
+    size = None
+    for frame in frames:
+        n += 1
+        size = (frame.shape[1], frame.shape[0])
+        for i, uv in det.centres_px(frame).items():
+            if i in seen:
+                seen[i].append(uv)
+    missing = sorted(i for i, v in seen.items() if n == 0 or len(v) < min_seen * n)
+    if missing:
+        raise SetupError(f"marker(s) {missing} not seen in enough of the {n} frames: "
+                         "check they are in view, lit, and of dictionary DICT_4X4_50")
+    ids = sorted(at)
+    px = np.array([np.median(np.array(seen[i]), axis=0) for i in ids])
+    xy = np.array([at[i] for i in ids], dtype=float)
+    try:
+        h = Homography.from_points(px, xy, height_m, size)
+    except CalibrationError as e:
+        raise SetupError(str(e)) from None
+    return h, px, xy
+
+
 class AnnotatedOutput:
     """Annotated frames to a video file (``.avi`` Motion-JPEG, ``.mp4`` mp4v) or, for any other
     path, a directory of ``frame_000000.png`` files."""

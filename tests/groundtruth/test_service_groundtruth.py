@@ -9,6 +9,7 @@ import sys
 import threading
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from arena.cli import main
@@ -184,3 +185,27 @@ def test_runs_from_the_lab_config(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "hsv detector" in r.stdout and "robots seen: zumo1, zumo2" in r.stdout
     assert len(list(csv.DictReader(open(tmp_path / "gt.csv")))) == 24
+
+
+def test_calibrate_at_shell_height_from_markers_at_known_spots(tmp_path, capsys):
+    """Four marker robots at known positions give the shell-top homography (vs the camera's exact one)."""
+    spots = {0: (0.15, 0.15), 1: (1.68, 0.2), 2: (1.6, 1.7), 3: (0.2, 1.65)}
+    w = World([RobotSpec(f"c{i}", (200, 200, 200), marker_id=i, start=(*xy, 0.3 * i)) for i, xy in spots.items()])
+    m = WebcamModel(w)
+    m.record(tmp_path / "calib.avi", seconds=0.5)
+    at = [a for i, (x, y) in spots.items() for a in ("--at", f"{i}={x},{y}")]
+    out = tmp_path / "cal.json"
+    assert main(["groundtruth", "--video", str(tmp_path / "calib.avi"), "--calibrate-out", str(out), *at]) == 0
+    assert "calibration written" in capsys.readouterr().out
+    mine = homography_from_calibration(json.loads(out.read_text()))
+    exact = homography_from_calibration(m.calibration)
+    grid = np.array([[x, y] for x in np.linspace(0.1, 1.7, 5) for y in np.linspace(0.1, 1.7, 5)])
+    err = np.linalg.norm(mine.to_arena(exact.to_pixel(grid)) - grid, axis=1)
+    assert np.median(err) < 0.003 and err.max() < 0.008
+    # a marker that is not in view: a clear error
+    assert main(["groundtruth", "--video", str(tmp_path / "calib.avi"), "--calibrate-out", str(out),
+                 *at[:6], "--at", "9=1,1"]) == 2
+    assert "[9] not seen" in capsys.readouterr().err
+    assert main(["groundtruth", "--video", str(tmp_path / "calib.avi"), "--calibrate-out", str(out),
+                 "--at", "0=1"]) == 2
+    assert "ID=X,Y" in capsys.readouterr().err
