@@ -171,6 +171,8 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
         finally:
             pub.close()
             result = {"events_in": pipeline.n_in, "events_kept": pipeline.n_out, "windows": pub.seq,
-                      "windows_dropped": pub.dropped, "cpu_s": time.process_time() - cpu0,
+                      "windows_dropped": pub.dropped,
+                      "windows_unsubscribed": int(svc.counter("windows_unsubscribed")),
+                      "cpu_s": time.process_time() - cpu0,
                       "wall_s": time.monotonic() - wall0}
     return result
