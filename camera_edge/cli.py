@@ -18,8 +18,10 @@ Examples:
   arena edge rec.raw --camera cam0 --speed 1 --loop          # replay a recording in real time
   arena edge prophesee: --camera cam0 --denoise --hot-pixels learn
   arena edge inivation: --camera cam0 --roi calib.json --roi-margin 10
-  arena edge --lab lab.toml --camera cam0                    # source, size, ROI from the lab config
+  arena edge --lab lab.toml --camera cam0                    # source, size, [services.edge] options
   arena edge --list-devices                                  # attached event cameras (USB)
+Options not given as flags come from the lab config's [services.edge] table (slice_ms, codec,
+speed, hot_pixels, hot_learn_s, roi, roi_margin, denoise, queue), else the defaults.
 Status: arena status (events/s in, filtered, bytes/s out, encode time, drops)."""
 
 CONVERT_EXAMPLES = """\
@@ -93,24 +95,48 @@ def register_edge(sub) -> None:
     p.add_argument("--camera", default=None, help="camera name (key arena/events/<camera>; default cam0 or the "
                    "lab config's first camera)")
     p.add_argument("--list-devices", action="store_true", help="list attached event cameras and exit")
-    p.add_argument("--slice-ms", type=float, default=10.0, help="slice duration in ms of sensor time (default 10)")
-    p.add_argument("--codec", choices=CODECS, default=DEFAULT_CODEC,
+    p.add_argument("--slice-ms", type=float, default=None, help="slice duration in ms of sensor time (default 10)")
+    p.add_argument("--codec", choices=CODECS, default=None,
                    help=f"window codec (default {DEFAULT_CODEC}, lossless; planes-zstd-ms/1 floors times to 1 ms)")
-    p.add_argument("--speed", type=float, default=1.0, help="file replay speed: 1 real time, 0 as fast as possible")
+    p.add_argument("--speed", type=float, default=None, help="file replay speed: 1 real time, 0 as fast as possible")
     p.add_argument("--loop", action="store_true", help="replay a file forever (times keep increasing)")
     f = p.add_argument_group("filters (each optional, in this order)")
     f.add_argument("--hot-pixels", metavar="learn|FILE", default=None,
                    help="drop hot pixels: learned over --hot-learn-s, or listed in FILE (x,y lines or .npy)")
-    f.add_argument("--hot-learn-s", type=float, default=2.0, help="learning time of hot pixels, s (default 2)")
+    f.add_argument("--hot-learn-s", type=float, default=None, help="learning time of hot pixels, s (default 2)")
     f.add_argument("--roi", metavar="lab|CALIB_JSON", default=None,
                    help="keep events inside the arena: the hull of the calibration points (lab: the lab camera's)")
-    f.add_argument("--roi-margin", type=int, default=10, help="grow the region of interest by PX (default 10)")
+    f.add_argument("--roi-margin", type=int, default=None, help="grow the region of interest by PX (default 10)")
     f.add_argument("--denoise", nargs="?", const=10_000, type=int, default=None, metavar="DT_US",
                    help="background-activity filter: keep events with a neighbour within DT_US µs (default 10000)")
-    p.add_argument("--queue", type=int, default=32, help="windows queued before the oldest is dropped (default 32)")
+    p.add_argument("--queue", type=int, default=None, help="windows queued before the oldest is dropped (default 32)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     add_zenoh_arguments(p)
     p.set_defaults(func=run_edge_cli)
+
+
+#: options of ``[services.edge]`` in the lab config (flags win) and their built-in defaults
+LAB_OPTIONS = {"slice_ms": 10.0, "codec": DEFAULT_CODEC, "speed": 1.0, "hot_pixels": None, "hot_learn_s": 2.0,
+               "roi": None, "roi_margin": 10, "denoise": None, "queue": 32}
+
+
+def _apply_lab_options(args, options: dict) -> str | None:
+    """Fill flags left unset from ``[services.edge]`` then the defaults; returns an error or None."""
+    unknown = sorted(set(options) - set(LAB_OPTIONS))
+    if unknown:
+        return f"unknown [services.edge] option(s) {unknown}; known: {', '.join(LAB_OPTIONS)}"
+    for key, default in LAB_OPTIONS.items():
+        if getattr(args, key) is None:
+            value = options.get(key, default)
+            if default is not None and value is not None and not isinstance(value, type(default)):
+                if isinstance(default, float) and isinstance(value, int):
+                    value = float(value)
+                else:
+                    return f"[services.edge] {key} must be a {type(default).__name__}, got {value!r}"
+            setattr(args, key, value)
+    if args.codec not in CODECS:
+        return f"[services.edge] codec must be one of {', '.join(CODECS)}, got {args.codec!r}"
+    return None
 
 
 def _build_filters(args, width: int, height: int, lab_camera) -> list:
@@ -178,6 +204,10 @@ def run_edge_cli(args) -> int:
         except ConfigError as exc:
             print(f"arena edge: {exc}", file=sys.stderr)
             return 2
+    err = _apply_lab_options(args, lab.service("edge") if lab is not None else {})
+    if err:
+        print(f"arena edge: {err}", file=sys.stderr)
+        return 2
     name = args.camera or (cam.name if cam else "cam0")
     try:
         validate_name(name, "camera name")

@@ -81,3 +81,25 @@ def test_edge_list_devices_and_help():
     assert "Examples:" in r.stdout and "--denoise" in r.stdout
     r = _run("convert", "--help")
     assert "Examples:" in r.stdout
+
+
+def test_lab_options_fill_unset_flags_and_are_checked():
+    import argparse
+
+    from camera_edge.cli import LAB_OPTIONS, _apply_lab_options
+
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    args.codec = "raw/1"  # a flag wins over the lab config
+    assert _apply_lab_options(args, {"slice_ms": 20, "codec": "planes-zstd/1", "denoise": 5000}) is None
+    assert (args.slice_ms, args.codec, args.denoise, args.queue) == (20.0, "raw/1", 5000, 32)
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    assert "unknown [services.edge] option" in _apply_lab_options(args, {"slice": 3})
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    assert "must be a int" in _apply_lab_options(args, {"queue": "big"})
+
+
+def test_edge_reads_its_camera_from_the_lab_config(tmp_path):
+    (tmp_path / "lab.toml").write_text('[[cameras]]\nname = "camx"\nsource = "nowhere.aedat4"\n'
+                                       '[services.edge]\nslice_ms = 5\n')
+    r = _run("edge", "--lab", str(tmp_path / "lab.toml"))
+    assert r.returncode == 2 and "nowhere.aedat4" in r.stderr and "Traceback" not in r.stderr
