@@ -30,7 +30,7 @@ import csv
 import math
 import time
 from collections import deque
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -69,9 +69,6 @@ class Detection:
         return [self.t_us, self.robot, f"{self.x_m:.5f}", f"{self.y_m:.5f}",
                 "nan" if math.isnan(self.yaw_rad) else f"{self.yaw_rad:.5f}",
                 f"{self.u_px:.2f}", f"{self.v_px:.2f}", self.detector]
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 class DetectionWriter:
