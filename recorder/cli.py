@@ -8,7 +8,7 @@ import socket
 import sys
 import time
 
-from arena.keys import EVERYTHING, validate_name, InvalidKey
+from arena.keys import EVERYTHING, InvalidKey, validate_name
 from arena.service import stop_on_signals
 from arena.session import SessionError, add_zenoh_arguments, open_session
 from recorder.mcapio import RunFileError, find_run_file

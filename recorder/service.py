@@ -8,7 +8,6 @@ SIGTERM, Ctrl-C) undeclares the subscriber, drains the queue and finishes the MC
 
 from __future__ import annotations
 
-import logging
 import queue
 import threading
 import time
@@ -20,8 +19,6 @@ import zenoh
 
 from arena.service import Service
 from recorder.mcapio import RecordedMessage, RunWriter, read_run
-
-log = logging.getLogger("arena.recorder")
 
 
 @dataclass

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import sys
 import threading
@@ -14,8 +13,6 @@ from arena.config import ConfigError
 from arena.keys import InvalidKey, validate_name
 from arena.service import Service, stop_on_signals
 from arena.session import SessionError, add_zenoh_arguments, load_lab_from_args, open_session
-
-log = logging.getLogger("arena.viewer")
 
 
 def _formatter(prog: str) -> argparse.HelpFormatter:
