@@ -1,5 +1,6 @@
 """``.npy`` (a structured array with fields x, y, p, t) and ``.npz`` (arrays ``x``, ``y``, ``p``
-(1 = ON, 0 = OFF), ``t`` (µs), optional scalars ``width``, ``height``)."""
+(1 = ON, 0 = OFF), ``t`` (µs), or one structured array ``events`` as the simulator saves them;
+optional scalars ``width``, ``height``)."""
 
 from __future__ import annotations
 
@@ -21,10 +22,14 @@ class NumpyReader(EventReader):
         try:
             if path.suffix.lower() == ".npz":
                 with np.load(path, allow_pickle=False) as z:
-                    missing = [k for k in "xypt" if k not in z.files]
-                    if missing:
-                        raise FormatError(f"{path}: npz lacks array(s) {missing}; has {z.files}")
-                    self._ev = make_events(z["x"], z["y"], z["p"] > 0, z["t"])
+                    if "events" in z.files and "x" not in z.files:  # a structured array (simulator)
+                        self._ev = check_events(z["events"])
+                    else:
+                        missing = [k for k in "xypt" if k not in z.files]
+                        if missing:
+                            raise FormatError(f"{path}: npz lacks array(s) {missing} (or a structured "
+                                              f"'events' array); has {z.files}")
+                        self._ev = make_events(z["x"], z["y"], z["p"] > 0, z["t"])
                     width = width or (int(z["width"]) if "width" in z.files else None)
                     height = height or (int(z["height"]) if "height" in z.files else None)
             else:

@@ -185,3 +185,32 @@ def test_raw_garbage_outside_sensor_is_counted(tmp_path):
     with iter_events(tmp_path / "x.raw") as reader:
         out = reader.read_all()
         assert reader.invalid == 1 and out.size == 100
+
+
+@pytest.mark.parametrize("ext", [".raw", ".csv", ".npz"])
+def test_files_the_simulator_writes(tmp_path, ext):
+    from simulator.recording import save_recording, write_events as sim_write
+    from simulator.scenarios import Scenario, generate
+
+    rec = generate(Scenario(n_robots=2, pattern="circle", duration_s=0.6, seed=11))
+    path = tmp_path / f"sim{ext}"
+    if ext == ".npz":
+        save_recording(rec, path)
+    else:
+        sim_write(path, rec.events, rec.width, rec.height)
+    ev, w, h = read_events(path, **({"width": rec.width, "height": rec.height} if ext == ".csv" else {}))
+    order = np.lexsort((rec.events["x"], rec.events["p"], rec.events["y"], rec.events["t"]))
+    expected = rec.events[order] if ext == ".raw" else rec.events  # the camera's (t, y, p, x) order
+    np.testing.assert_array_equal(ev, expected)
+    assert (w, h) == (rec.width, rec.height)
+
+
+def test_simulator_raw_across_the_24bit_wrap(tmp_path):
+    from simulator.recording import write_events as sim_write
+
+    ev = _random_events(4000, seed=12, t0=(1 << 24) - 100_000)
+    ev["t"] += np.arange(ev.size) * 60  # ~0.4 s across the 16.7 s wrap
+    ev = ev[np.lexsort((ev["x"], ev["p"], ev["y"], ev["t"]))]
+    sim_write(tmp_path / "w.raw", ev, 1280, 720)
+    out, _, _ = read_events(tmp_path / "w.raw")
+    np.testing.assert_array_equal(out["t"], ev["t"])
