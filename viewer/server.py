@@ -46,7 +46,20 @@ class ViewerServer(ThreadingHTTPServer):
         self.stopping = threading.Event()
         self.clients = 0
         self._files = {name: (_STATIC_DIR / name).read_bytes() for name in _STATIC}
+        self._frame_lock = threading.Lock()
+        self._frame: tuple[int, str | None] = (-1, None)
         super().__init__((host, port), _Handler)
+
+    def frame_url(self, windows: int) -> str | None:
+        """The event image as a PNG data URL, rendered once per count of received ``windows``
+        however many pages are open; None before the first window."""
+        with self._frame_lock:
+            if self._frame[0] != windows:
+                index = self.state.render_index()
+                url = None if index is None else \
+                    "data:image/png;base64," + base64.b64encode(encode_indexed_png(index, PALETTE)).decode()
+                self._frame = (windows, url)
+            return self._frame[1]
 
     @property
     def port(self) -> int:
@@ -113,10 +126,9 @@ class _Handler(BaseHTTPRequestHandler):
             while not srv.stopping.is_set():
                 snap = srv.state.snapshot()
                 if snap["counts"]["windows"] != sent_windows:
-                    index = srv.state.render_index()
-                    if index is not None:
-                        png = encode_indexed_png(index, PALETTE)
-                        snap["frame"] = "data:image/png;base64," + base64.b64encode(png).decode()
+                    url = srv.frame_url(snap["counts"]["windows"])
+                    if url is not None:
+                        snap["frame"] = url
                         sent_windows = snap["counts"]["windows"]
                 data = json.dumps(snap, separators=(",", ":"))
                 self.wfile.write(f"data: {data}\n\n".encode())

@@ -153,3 +153,19 @@ def test_pixels_of_other_cameras_are_not_used():
     snap = st.snapshot()
     assert snap["tracks"][0]["uv"] == pytest.approx(to_px(1.0, 0.5), abs=0.2)  # projected, not cam1's pixel
     assert snap["groundtruth"][0]["uv"] == pytest.approx(to_px(1.0, 0.5), abs=0.2)  # not the webcam's pixel
+
+
+def test_frame_rendered_once_per_new_window_for_all_pages():
+    st = ViewerState()
+    srv = ViewerServer(st, "127.0.0.1", 0)
+    try:
+        assert srv.frame_url(0) is None
+        st.on_window(_win(0, 10_000, [1], [1], [1]))
+        url = srv.frame_url(1)
+        assert url.startswith("data:image/png;base64,")
+        frames = st.frame_no
+        assert srv.frame_url(1) is url and st.frame_no == frames  # a second page: no new render
+        st.on_window(_win(1, 20_000, [2], [2], [0]))
+        assert srv.frame_url(2) != url and st.frame_no == frames + 1
+    finally:
+        srv.server_close()
