@@ -93,7 +93,7 @@ class DvsParams:
                 raise ValueError(f"DvsParams: {msg}")
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _reflectance(u, v, ax, ay, bg, state, app, markers, members, n_members, pix_m):
     """Reflectance seen by pixel (u, v): background with the robots of ``members`` on top."""
     x = ax[v, u]
@@ -171,9 +171,10 @@ def _merge_boxes(boxes, owner):
 
 @njit(cache=True)
 def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
-               ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
+               hom, ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
                min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,
-               init, ox, oy, op, ot):
+               init, ox, oy, op, ot, last_refl, last_target, last_alpha, bg_alpha, std_dt_us,
+               settled, prev_pose):
     """Run the pixel model over the steps ``t_seq`` (µs, increasing, after ``t_start``).
 
     ``poses`` (k, n, 3) are the robot poses at each step, ``cur_boxes`` (k, n, 4) their
@@ -187,6 +188,8 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     cap = ox.shape[0]
     n = 0
     state = np.zeros((max(n_rob, 1), 4))
+    tight = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
+    moved = np.zeros(max(n_rob, 1), dtype=np.bool_)
     boxes = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
     owner = np.zeros(max(n_rob, 1), dtype=np.int64)
     members = np.zeros((max(n_rob, 1), max(n_rob, 1)), dtype=np.int64)
@@ -197,10 +200,33 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     for s in range(k_steps):
         dt_us = t_seq[s] - t_prev
         for r in range(n_rob):
+            moved[r] = (poses[s, r, 0] != prev_pose[r, 0] or poses[s, r, 1] != prev_pose[r, 1]
+                        or poses[s, r, 2] != prev_pose[r, 2])
+            prev_pose[r, 0] = poses[s, r, 0]
+            prev_pose[r, 1] = poses[s, r, 1]
+            prev_pose[r, 2] = poses[s, r, 2]
             state[r, 0] = poses[s, r, 0]
             state[r, 1] = poses[s, r, 1]
             state[r, 2] = math.cos(poses[s, r, 2])
             state[r, 3] = math.sin(poses[s, r, 2])
+            # tight pixel box of the footprint (its 4 corners through the homography) + 2 px
+            tight[r, 0] = width
+            tight[r, 1] = height
+            tight[r, 2] = -1
+            tight[r, 3] = -1
+            for cx_ in (-1.0, 1.0):
+                for cy_ in (-1.0, 1.0):
+                    bx = cx_ * app[r, 0]
+                    by = cy_ * app[r, 1]
+                    xa = state[r, 0] + state[r, 2] * bx - state[r, 3] * by
+                    ya = state[r, 1] + state[r, 3] * bx + state[r, 2] * by
+                    w_ = hom[2, 0] * xa + hom[2, 1] * ya + hom[2, 2]
+                    pu = (hom[0, 0] * xa + hom[0, 1] * ya + hom[0, 2]) / w_
+                    pv = (hom[1, 0] * xa + hom[1, 1] * ya + hom[1, 2]) / w_
+                    tight[r, 0] = min(tight[r, 0], int(math.floor(pu)) - 2)
+                    tight[r, 1] = min(tight[r, 1], int(math.floor(pv)) - 2)
+                    tight[r, 2] = max(tight[r, 2], int(math.ceil(pu)) + 2)
+                    tight[r, 3] = max(tight[r, 3], int(math.ceil(pv)) + 2)
         if full_frame or init:
             m = 1
             boxes[0, 0] = 0
@@ -243,29 +269,58 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
             area += max(boxes[b, 2] - boxes[b, 0], 0) * max(boxes[b, 3] - boxes[b, 1], 0)
         if not init and n + area * max_per_px > cap:
             return done, n, hist_i
+        n_step0 = n
         dt_s = dt_us * 1e-6
+        std_dt = dt_us == std_dt_us     # the cached low-pass factors are for this step
         illum = illum_seq[s]
         for b in range(m):
             mem = members[b]
             nm = n_members[b]
             for v in range(boxes[b, 1], boxes[b, 3]):
                 for u in range(boxes[b, 0], boxes[b, 2]):
-                    refl = _reflectance(u, v, ax, ay, bg, state, app, markers, mem, nm, pix_m)
+                    near = False        # inside some robot's footprint box
+                    near_moving = False  # ... of a robot that moved this step
+                    for j in range(nm):
+                        r = mem[j]
+                        if tight[r, 0] <= u <= tight[r, 2] and tight[r, 1] <= v <= tight[r, 3]:
+                            near = True
+                            if moved[r]:
+                                near_moving = True
+                                break
+                    if static_light and not near_moving and settled[v, u] and not init:
+                        continue            # nothing changes here: skip the pixel
+                    if near:
+                        refl = _reflectance(u, v, ax, ay, bg, state, app, markers, mem, nm, pix_m)
+                    else:
+                        refl = bg[v, u]
+                    irr = illum * refl
                     if static_light and refl == bg[v, u]:
                         target = bg_log[v, u]
-                        irr = illum * refl
+                        a = bg_alpha[v, u] if std_dt else -1.0
+                    elif static_light and refl == last_refl[v, u]:
+                        target = last_target[v, u]      # e.g. inside a uniform shell
+                        a = last_alpha[v, u] if std_dt else -1.0
                     else:
-                        irr = illum * refl
                         target = math.log(irr + dark)
+                        a = -1.0
                     if init:
                         llp[v, u] = target
                         lmem[v, u] = target
+                        settled[v, u] = 1
                         continue
                     old = llp[v, u]
                     new = old
-                    if abs(target - old) > 1e-7:
-                        f = max(cutoff_hz * (irr + dark), min_cutoff_hz)
-                        new = old + (target - old) * (1.0 - math.exp(-2.0 * math.pi * f * dt_s))
+                    settled[v, u] = 1
+                    if abs(target - old) > 1e-6:    # settled (float32 memory)
+                        settled[v, u] = 0
+                        if a < 0.0:
+                            f = max(cutoff_hz * (irr + dark), min_cutoff_hz)
+                            a = 1.0 - math.exp(-2.0 * math.pi * f * dt_s)
+                            if static_light and std_dt and refl != bg[v, u]:
+                                last_refl[v, u] = refl
+                                last_target[v, u] = target
+                                last_alpha[v, u] = a
+                        new = old + (target - old) * a
                         llp[v, u] = new
                     ref = lmem[v, u]
                     d_new = new - ref
@@ -277,6 +332,7 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                         sign = -1.0
                     else:
                         continue
+                    settled[v, u] = 0       # may still owe events (refractory, per-step cap)
                     d_old = old - ref
                     span = d_new - d_old
                     tl = t_last[v, u]
@@ -301,9 +357,49 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                     if k > 0:
                         lmem[v, u] = ref + sign * k * thr
                         t_last[v, u] = tl
+        if n - n_step0 > 1:
+            _sort_segment(ox, oy, op, ot, n_step0, n)
         t_prev = t_seq[s]
         done += 1
     return done, n, hist_i
+
+
+@njit(cache=True)
+def _sort_segment(ox, oy, op, ot, a, b):
+    """Sort events a..b-1 of the column buffers by time (stable)."""
+    order = np.argsort(ot[a:b], kind="mergesort")
+    tx = ox[a:b].copy()
+    ty = oy[a:b].copy()
+    tp = op[a:b].copy()
+    tt = ot[a:b].copy()
+    for i in range(b - a):
+        k = order[i]
+        ox[a + i] = tx[k]
+        oy[a + i] = ty[k]
+        op[a + i] = tp[k]
+        ot[a + i] = tt[k]
+
+
+@njit(cache=True)
+def _merge(sx, sy, sp, st, nx, ny, np_, nt, out, is_sig):
+    """Merge time-sorted signal and noise columns into ``out`` (EVENT_DTYPE) and labels."""
+    i = 0
+    j = 0
+    for k in range(out.shape[0]):
+        if j >= nt.shape[0] or (i < st.shape[0] and st[i] <= nt[j]):
+            out[k].x = sx[i]
+            out[k].y = sy[i]
+            out[k].p = sp[i]
+            out[k].t = st[i]
+            is_sig[k] = True
+            i += 1
+        else:
+            out[k].x = nx[j]
+            out[k].y = ny[j]
+            out[k].p = np_[j]
+            out[k].t = nt[j]
+            is_sig[k] = False
+            j += 1
 
 
 class DvsSensor:
@@ -343,6 +439,13 @@ class DvsSensor:
         self._lmem = np.zeros((h, w), dtype=np.float32)
         self._llp = np.zeros((h, w), dtype=np.float32)
         self._t_last = np.full((h, w), -(10 ** 12), dtype=np.int64)
+        # cache of the last non-background reflectance and its log intensity per pixel
+        self._last_refl = np.full((h, w), -1.0)
+        self._last_target = np.zeros((h, w))
+        self._last_alpha = np.zeros((h, w))
+        # 1 = pixel at rest (low-pass settled, no event owed): skipped unless a robot moves near
+        self._settled = np.ones((h, w), dtype=np.uint8)
+        self._prev_pose = np.full((max(len(robots), 1), 3), np.nan)
         hot = rng.choice(h * w, size=min(p.hot_pixels, h * w), replace=False)
         #: hot pixel addresses (k, 2): u, v
         self.hot_pixels = np.column_stack([hot % w, hot // w]).astype(np.int64)
@@ -352,6 +455,10 @@ class DvsSensor:
         self._markers = markers if self._n else np.ones((1, 6, 6), np.float32)
         self._illum0 = ILLUMINATION[lighting]
         self._bg_log = np.log(self._illum0 * camera.background + p.dark_current).astype(np.float32)
+        # photoreceptor low-pass factor of background pixels for one step of step_us
+        f_bg = np.maximum(p.cutoff_hz * (self._illum0 * camera.background + p.dark_current),
+                          p.min_cutoff_hz)
+        self._bg_alpha = 1.0 - np.exp(-2.0 * np.pi * f_bg * p.step_us * 1e-6)
         # ROI: footprint radius in px, and how long a pixel stays simulated after a robot left
         # (4 photoreceptor time constants of the darkest part of a robot, at most 150 ms)
         self._radius_px = np.hypot(app[:, 0], app[:, 1]) / camera.pixel_m * 1.1 + 3.0
@@ -394,15 +501,12 @@ class DvsSensor:
             raise ValueError(f"times must increase from {self.t_us} µs in steps of 1.."
                              f"{self.params.step_us} µs")
         t0 = self.t_us
-        sig = self._kernel(poses_seq, t_seq, t0, init=False)
-        noise = self._noise(t0, int(t_seq[-1]) - t0)
+        sx, sy, sp, st = self._kernel(poses_seq, t_seq, t0, init=False)
+        nx, ny, np_, nt = self._noise(t0, int(t_seq[-1]) - t0)
         self.t_us = int(t_seq[-1])
-        ev = np.concatenate([sig, noise])
-        is_sig = np.zeros(len(ev), dtype=bool)
-        is_sig[:len(sig)] = True
-        if len(ev) > 1:
-            order = np.argsort(ev["t"], kind="stable")
-            ev, is_sig = ev[order], is_sig[order]
+        ev = np.empty(len(st) + len(nt), dtype=EVENT_DTYPE)
+        is_sig = np.empty(len(ev), dtype=bool)
+        _merge(sx, sy, sp, st, nx, ny, np_, nt, ev, is_sig)
         return ev, is_sig
 
     # ------------------------------------------------------------------ internals
@@ -436,7 +540,8 @@ class DvsSensor:
                          np.ceil(uv[..., 0] + r) + 1, np.ceil(uv[..., 1] + r) + 1],
                         axis=-1).astype(np.int64)
 
-    def _kernel(self, poses_seq, t_seq, t0, init) -> np.ndarray:
+    def _kernel(self, poses_seq, t_seq, t0, init) -> tuple[np.ndarray, ...]:
+        """Run the pixel kernel; return time-sorted signal event columns (x, y, p, t)."""
         p = self.params
         cur = self._robot_boxes(poses_seq)
         illum = self._illum(t_seq)
@@ -447,14 +552,13 @@ class DvsSensor:
             ox, oy, op, ot = self._buf
             done, n, self._hist_i = _dvs_block(
                 poses_seq, t_seq, t0, cur, self._hist, self._hist_i, full, self.width,
-                self.height, self.camera.ax, self.camera.ay, self.camera.background,
+                self.height, self.camera.H, self.camera.ax, self.camera.ay, self.camera.background,
                 self._bg_log, self._app, self._markers, self.camera.pixel_m, illum,
                 p.dark_current, p.cutoff_hz, p.min_cutoff_hz, self._lmem, self._llp,
                 self._thr_on, self._thr_off, self._t_last, int(p.refractory_us), int(max_count),
-                init, ox, oy, op, ot)
-            ev = np.empty(n, dtype=EVENT_DTYPE)
-            ev["x"], ev["y"], ev["p"], ev["t"] = ox[:n], oy[:n], op[:n], ot[:n]
-            out.append(ev)
+                init, ox, oy, op, ot, self._last_refl, self._last_target, self._last_alpha,
+                self._bg_alpha, int(p.step_us), self._settled, self._prev_pose)
+            out.append((ox[:n].copy(), oy[:n].copy(), op[:n].copy(), ot[:n].copy()))
             if done == len(t_seq):
                 break
             if done == 0:   # one step needs more room than we have: grow
@@ -463,26 +567,24 @@ class DvsSensor:
                     raise MemoryError("DVS step needs more than 2^27 events of buffer")
             t0 = int(t_seq[done - 1]) if done else t0
             poses_seq, t_seq, cur, illum = poses_seq[done:], t_seq[done:], cur[done:], illum[done:]
-        return out[0] if len(out) == 1 else np.concatenate(out)
+        if len(out) == 1:
+            return out[0]
+        return tuple(np.concatenate([o[c] for o in out]) for c in range(4))
 
-    def _noise(self, t0: int, dt: int) -> np.ndarray:
-        """Background activity and hot-pixel events in (t0, t0 + dt] µs."""
+    def _noise(self, t0: int, dt: int) -> tuple[np.ndarray, ...]:
+        """Background activity and hot-pixel events in (t0, t0 + dt] µs: time-sorted
+        columns (x, y, p, t)."""
         rng = self._rng
         npix = self.width * self.height
         k = int(rng.poisson(self.noise_rate_hz * npix * dt * 1e-6))
         hot = self.hot_pixels
         kh = rng.poisson(self.params.hot_rate_hz * dt * 1e-6, len(hot))
-        nh = int(kh.sum())
-        ev = np.empty(k + nh, dtype=EVENT_DTYPE)
-        if k + nh == 0:
-            return ev
-        idx = rng.integers(0, npix, k)
-        ev["x"][:k] = idx % self.width
-        ev["y"][:k] = idx // self.width
-        ev["p"][:k] = rng.random(k) < self.params.noise_on_fraction
         which = np.repeat(np.arange(len(hot)), kh)
-        ev["x"][k:] = hot[which, 0]
-        ev["y"][k:] = hot[which, 1]
-        ev["p"][k:] = rng.integers(0, 2, nh)
-        ev["t"] = t0 + 1 + rng.integers(0, dt, k + nh)
-        return ev
+        idx = np.concatenate([rng.integers(0, npix, k), hot[which, 1] * self.width + hot[which, 0]])
+        pol = np.concatenate([rng.random(k) < self.params.noise_on_fraction,
+                              rng.integers(0, 2, len(which)).astype(bool)]).astype(np.uint8)
+        t = t0 + 1 + rng.integers(0, dt, len(idx))
+        order = np.argsort(t, kind="stable")
+        idx, pol, t = idx[order], pol[order], t[order]
+        return ((idx % self.width).astype(np.uint16), (idx // self.width).astype(np.uint16), pol,
+                t.astype(np.int64))

@@ -33,6 +33,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 #: Full-scale motor power (Zumo 32U4 ``motors.setSpeeds`` range is -400..400).
 MAX_POWER = 400
@@ -43,6 +44,61 @@ GRAVITY = 9.81
 EARTH_FIELD_UT = np.array([0.0, 20.0, -44.0])
 LIGHTING_LEVELS = ("full", "dimmed", "dark")
 
+
+@njit(cache=True)
+def _physics_step(h, pose, vtread, power, gain, tau, chi0, lat_slip, track, vmax, half, arena_m,
+                  vel, acc_body, travel, energy, noise, deadband, noise_sigma):
+    """Advance every robot by ``h`` s (see the module docstring for the model)."""
+    for i in range(pose.shape[0]):
+        v_body_old = 0.5 * (vtread[i, 0] + vtread[i, 1])
+        work = 0.0
+        for side in range(2):
+            p = power[i, side]
+            eff = 0.0 if abs(p) < deadband else p
+            work += abs(eff) / MAX_POWER
+            target = eff / MAX_POWER * vmax[i] * gain[i, side]
+            # the motor driver brakes at power 0 (shorted windings): faster than it accelerates
+            t_c = 0.4 * tau[i, side] if target == 0.0 else tau[i, side]
+            v = vtread[i, side] + (target - vtread[i, side]) * (1.0 - math.exp(-h / t_c))
+            if target == 0.0 and abs(v) < 0.01:
+                v = 0.0             # static friction: an unpowered, nearly still tread stops
+            if abs(v) > 1e-4:
+                v += noise[i, side] * noise_sigma * abs(v)
+            vtread[i, side] = v
+        vl = vtread[i, 0]
+        vr = vtread[i, 1]
+        # skid-steer: turning skids the tracks, the effective track width grows with turn rate
+        dv = vr - vl
+        chi = chi0[i] * (1.0 + 0.3 * min(abs(dv) / (2.0 * vmax[i]), 1.0))
+        omega = dv / (track[i] * chi)
+        v = 0.5 * (vl + vr) * (1.0 - 0.02 * min(abs(omega) / 10.0, 1.0))
+        v_lat = -lat_slip[i] * v * omega          # outward drift on curves
+        yaw = pose[i, 2]
+        c = math.cos(yaw)
+        s = math.sin(yaw)
+        vx = c * v - s * v_lat
+        vy = s * v + c * v_lat
+        lo = half[i]
+        hi = arena_m - half[i]
+        x_new = pose[i, 0] + vx * h
+        y_new = pose[i, 1] + vy * h
+        xc = min(max(x_new, lo), hi)
+        yc = min(max(y_new, lo), hi)
+        if xc != x_new:
+            vx = 0.0                # against a wall: the treads slip, the body stays
+        if yc != y_new:
+            vy = 0.0
+        pose[i, 0] = xc
+        pose[i, 1] = yc
+        pose[i, 2] = (yaw + omega * h + math.pi) % (2.0 * math.pi) - math.pi
+        acc_body[i, 0] = (0.5 * (vl + vr) - v_body_old) / h
+        acc_body[i, 1] = v * omega
+        vel[i, 0] = vx
+        vel[i, 1] = vy
+        vel[i, 2] = omega
+        travel[i, 0] += vl * h
+        travel[i, 1] += vr * h
+        energy[i] += work * h
 
 @dataclass
 class RobotSpec:
@@ -129,6 +185,11 @@ class World:
         self._accel_bias = rng.normal(0.0, 0.05, (n, 3))  # m/s^2
         self._mag_bias = rng.normal(0.0, 5.0, (n, 3))     # µT (hard iron)
         self._battery0 = rng.uniform(5000.0, 5400.0, n)   # mV, 4 x AA NiMH
+        # physics noise is drawn in banks from self._rng; sensor noise from its own stream,
+        # so reading the IMU (from other threads, at any time) never changes the motion
+        self._noise_bank = np.zeros((0, n, 2))
+        self._noise_i = 0
+        self._imu_rng = np.random.default_rng([self.seed, 1])
 
     # ------------------------------------------------------------------ commands
     def set_power(self, i: int, left: int, right: int) -> None:
@@ -159,44 +220,15 @@ class World:
     def _substep(self, h: float) -> None:
         if h <= 0 or len(self.robots) == 0:
             return
-        p = self._power
-        eff = np.where(np.abs(p) < self.DEADBAND, 0.0, p)
-        target = eff / MAX_POWER * self._vmax[:, None] * self._gain
-        # the motor driver brakes at power 0 (shorted windings): faster than it accelerates
-        tau = np.where(target == 0.0, 0.4 * self._tau, self._tau)
-        alpha = 1.0 - np.exp(-h / tau)
-        v_old = self._vtread.copy()
-        self._vtread += (target - self._vtread) * alpha
-        # static friction: an unpowered tread that is nearly still stops
-        self._vtread[(target == 0.0) & (np.abs(self._vtread) < 0.01)] = 0.0
-        moving = np.abs(self._vtread) > 1e-4
-        noise = self._rng.normal(0.0, self.SPEED_NOISE * math.sqrt(h), self._vtread.shape)
-        self._vtread += noise * np.abs(self._vtread) * moving
-        vl, vr = self._vtread[:, 0], self._vtread[:, 1]
-        # skid-steer: turning skids the tracks, effective track width grows with turn rate
-        dv = vr - vl
-        chi = self._chi0 * (1.0 + 0.3 * np.clip(np.abs(dv) / (2 * self._vmax), 0, 1))
-        omega = dv / (self._track * chi)
-        v = 0.5 * (vl + vr) * (1.0 - 0.02 * np.clip(np.abs(omega) / 10.0, 0, 1))
-        v_lat = -self._lat_slip * v * omega          # outward drift on curves
-        yaw = self._pose[:, 2]
-        c, s = np.cos(yaw), np.sin(yaw)
-        vx = c * v - s * v_lat
-        vy = s * v + c * v_lat
-        x_new = self._pose[:, 0] + vx * h
-        y_new = self._pose[:, 1] + vy * h
-        lo, hi = self._half, self.arena_m - self._half
-        xc, yc = np.clip(x_new, lo, hi), np.clip(y_new, lo, hi)
-        vx = np.where(xc != x_new, 0.0, vx)
-        vy = np.where(yc != y_new, 0.0, vy)
-        self._pose[:, 0], self._pose[:, 1] = xc, yc
-        self._pose[:, 2] = (yaw + omega * h + math.pi) % (2 * math.pi) - math.pi
-        v_body_old = 0.5 * (v_old[:, 0] + v_old[:, 1])
-        self._acc_body[:, 0] = (0.5 * (vl + vr) - v_body_old) / h
-        self._acc_body[:, 1] = v * omega
-        self._vel[:, 0], self._vel[:, 1], self._vel[:, 2] = vx, vy, omega
-        self._travel += self._vtread * h
-        self._energy += np.abs(eff).sum(axis=1) / MAX_POWER * h
+        if self._noise_i >= len(self._noise_bank):
+            self._noise_bank = self._rng.standard_normal((256,) + self._vtread.shape)
+            self._noise_i = 0
+        noise = self._noise_bank[self._noise_i]
+        self._noise_i += 1
+        _physics_step(h, self._pose, self._vtread, self._power, self._gain, self._tau, self._chi0,
+                      self._lat_slip, self._track, self._vmax, self._half, self.arena_m, self._vel,
+                      self._acc_body, self._travel, self._energy, noise,
+                      float(self.DEADBAND), self.SPEED_NOISE * math.sqrt(h))
 
     # ------------------------------------------------------------------ state
     def pose(self, i: int) -> tuple[float, float, float]:
@@ -240,7 +272,7 @@ class World:
         """
         with self.lock:
             self._check(i)
-            rng = self._rng
+            rng = self._imu_rng
             yaw = self._pose[i, 2]
             acc = np.array([self._acc_body[i, 0], self._acc_body[i, 1], GRAVITY])
             gyro = np.array([0.0, 0.0, self._vel[i, 2]])
