@@ -140,20 +140,19 @@ class HotPixelFilter(EventFilter):
 
 @njit(cache=True, nogil=True)
 def _ba_filter(xs, ys, ts, last, dt_us, keep):
-    h, w = last.shape
+    """``last`` holds each pixel's latest time, padded by one pixel on every side."""
     n = 0
     for i in range(xs.size):
-        x = np.int64(xs[i])
-        y = np.int64(ys[i])
+        x = np.int64(xs[i]) + 1
+        y = np.int64(ys[i]) + 1
         t = ts[i]
-        k = t - last[y, x] <= dt_us
+        lim = t - dt_us
+        k = (last[y - 1, x - 1] >= lim) | (last[y - 1, x] >= lim) | (last[y - 1, x + 1] >= lim) \
+            | (last[y, x - 1] >= lim) | (last[y, x + 1] >= lim) \
+            | (last[y + 1, x - 1] >= lim) | (last[y + 1, x] >= lim) | (last[y + 1, x + 1] >= lim)
         keep[i] = k
         n += k
-        # tell the 8 neighbours (not the pixel itself) that something fired next to them
-        for yy in range(max(y - 1, 0), min(y + 2, h)):
-            for xx in range(max(x - 1, 0), min(x + 2, w)):
-                if yy != y or xx != x:
-                    last[yy, xx] = t
+        last[y, x] = t
     return n
 
 
@@ -169,7 +168,7 @@ class BackgroundActivityFilter(EventFilter):
         if dt_us <= 0:
             raise ValueError(f"dt_us must be > 0, got {dt_us}")
         self.dt_us = int(dt_us)
-        self._last = np.full((height, width), -(1 << 62), np.int64)
+        self._last = np.full((height + 2, width + 2), -(1 << 62), np.int64)  # padded: no edge tests
 
     def _apply(self, events: np.ndarray) -> np.ndarray:
         keep = np.empty(events.size, np.bool_)
