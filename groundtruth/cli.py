@@ -151,7 +151,7 @@ def register_groundtruth(sub) -> None:
                     "lab config ([webcam] and [[robots]]) when --lab or ARENA_LAB is given.",
         epilog="Examples:\n"
                "  arena groundtruth --video http://127.0.0.1:8090/stream.mjpg \\\n"
-               "      --calibration http://127.0.0.1:8090/calibration.json --csv gt.csv\n"
+               "      --calibration http://127.0.0.1:8090/calibration.json --clock stream --csv gt.csv\n"
                "  arena groundtruth --video 0 --calibration webcam_calib.json --detector aruco \\\n"
                "      --marker 0=zumo1 --marker 1=zumo2 --csv gt.csv\n"
                "  arena groundtruth --video run.avi --calibration webcam_calib.json --detector hsv \\\n"
@@ -172,6 +172,10 @@ def register_groundtruth(sub) -> None:
                    help="ArUco id of a robot, repeatable (unknown ids are ignored when any is given)")
     p.add_argument("--no-front-mark", action="store_true",
                    help="colour detector: shells have no front mark (heading from motion only)")
+    p.add_argument("--clock", choices=("host", "stream"), default="host",
+                   help="frame times of a live source: host clock at capture (default), or the\n"
+                        "X-World-Time-us of each MJPEG part (arena sim: the simulator's clock, the\n"
+                        "time base of its event camera and truth CSV)")
     p.add_argument("--csv", metavar="OUT", help="write detections to this CSV")
     p.add_argument("--annotate", metavar="OUT", help="annotated frames: a .avi/.mp4 video or a directory of PNGs")
     p.add_argument("--name", default="webcam", help="service name in arena status (default webcam)")
@@ -239,7 +243,7 @@ def run_groundtruth(args: argparse.Namespace) -> int:
     except ValueError as exc:
         return fail(str(exc))
     try:
-        source = FrameSource(video)
+        source = FrameSource(video, clock=args.clock)
     except OSError as exc:
         return fail(str(exc))
     with source:
@@ -326,6 +330,9 @@ def _run_loop(args, lab, source, detector) -> int:
             runner.run(stop, max_frames=args.max_frames, duration_s=args.duration)
         except KeyboardInterrupt:
             pass
+        except OSError as exc:
+            print(f"arena groundtruth: {exc}", file=sys.stderr)
+            return 2
         print(f"arena groundtruth: {runner.frames} frames, {runner.detections} detections, "
               f"robots seen: {', '.join(sorted(runner.seen)) or 'none'}", flush=True)
     return 0

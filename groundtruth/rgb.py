@@ -104,23 +104,38 @@ class FrameSource:
     Args:
         source: a device index (``0`` or ``"0"``), a video file path, or a URL
             (``http://127.0.0.1:8090/stream.mjpg``, ``rtsp://...``).
+        clock: for live sources, ``"host"`` stamps each frame with the host clock
+            (``time.time_ns() // 1000``, µs) right after it is grabbed; ``"stream"`` reads an
+            MJPEG-over-HTTP stream directly and uses the per-frame ``X-World-Time-us`` header
+            that ``arena sim`` sends (the simulator's clock: the event camera's and the truth
+            CSV's time base). Files are always stamped with their media time (µs from the start).
+        timeout_s: network timeout of the ``"stream"`` reader, s.
 
-    Live sources (devices, URLs) are stamped with the host clock (``time.time_ns() // 1000``,
-    µs) right after the frame is grabbed; files with their media time (µs from the start).
     Raises ``OSError`` with a clear message if the source cannot be opened.
     """
 
-    def __init__(self, source: str | int):
+    def __init__(self, source: str | int, clock: str = "host", timeout_s: float = 5.0):
+        if clock not in ("host", "stream"):
+            raise ValueError(f"clock must be 'host' or 'stream', got {clock!r}")
         self.source = source
         index = _as_index(source)
         self.live = index is not None or "://" in str(source)
+        if clock == "stream" and not str(source).startswith(("http://", "https://")):
+            raise OSError(f"clock 'stream' needs an MJPEG http:// URL, got {source!r}")
         if not self.live and not Path(str(source)).exists():
             raise OSError(f"video file not found: {source}")
-        self._cap = self._open()
+        self.clock = clock
+        self.timeout_s = float(timeout_s)
+        self._cap = None
+        self._http = None
+        self._open()
         #: Frames read so far.
         self.frames = 0
 
-    def _open(self) -> cv2.VideoCapture:
+    def _open(self) -> None:
+        if self.clock == "stream":
+            self._http = _MjpegReader(str(self.source), self.timeout_s)
+            return
         index = _as_index(self.source)
         if index is not None:
             cap = cv2.VideoCapture(index)
@@ -131,20 +146,27 @@ class FrameSource:
         if not cap.isOpened():
             cap.release()
             raise OSError(f"cannot open video source {self.source!r}")
-        return cap
+        self._cap = cap
 
     def reopen(self) -> None:
         """Close and open the source again (a live stream that dropped). Raises ``OSError``."""
-        self._cap.release()
-        self._cap = self._open()
+        self.close()
+        self._open()
 
     @property
     def fps(self) -> float:
         """The source's nominal frame rate (0 if unknown), frames/s."""
+        if self._cap is None:
+            return 0.0
         return float(self._cap.get(cv2.CAP_PROP_FPS) or 0.0)
 
     def read(self) -> tuple[int, np.ndarray] | None:
         """Next ``(t_us, BGR frame)``, or ``None`` at the end of the stream."""
+        if self._http is not None:
+            got = self._http.read()
+            if got is not None:
+                self.frames += 1
+            return got
         if not self._cap.grab():
             return None
         if self.live:
@@ -158,7 +180,12 @@ class FrameSource:
         return t_us, frame
 
     def close(self) -> None:
-        self._cap.release()
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+        if self._http is not None:
+            self._http.close()
+            self._http = None
 
     def __enter__(self) -> "FrameSource":
         return self
@@ -169,6 +196,60 @@ class FrameSource:
     def __iter__(self):
         while (got := self.read()) is not None:
             yield got
+
+
+class _MjpegReader:
+    """Minimal ``multipart/x-mixed-replace`` JPEG reader that keeps each part's headers."""
+
+    TIME_HEADER = b"x-world-time-us"
+
+    def __init__(self, url: str, timeout_s: float):
+        import urllib.request
+
+        try:
+            self._resp = urllib.request.urlopen(url, timeout=timeout_s)
+        except OSError as e:
+            raise OSError(f"cannot open video source {url!r}: {e}") from None
+        ctype = self._resp.headers.get("Content-Type", "")
+        if "multipart/x-mixed-replace" not in ctype or "boundary=" not in ctype:
+            self._resp.close()
+            raise OSError(f"{url} is not an MJPEG stream (Content-Type {ctype!r})")
+        self.url = url
+        self._boundary = b"--" + ctype.split("boundary=", 1)[1].split(";")[0].strip().strip('"').encode()
+
+    def read(self) -> tuple[int, np.ndarray] | None:
+        """Next ``(t_us, frame)``; ``None`` when the stream ends or breaks."""
+        try:
+            part = self._part()
+        except (OSError, ValueError):     # connection dropped, or a garbled part
+            return None
+        if part is None:
+            return None
+        headers, data = part
+        if self.TIME_HEADER not in headers:
+            raise OSError(f"{self.url} sends no X-World-Time-us per frame: use the host clock")
+        frame = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+        if frame is None:
+            return None
+        return int(headers[self.TIME_HEADER]), frame
+
+    def _part(self) -> tuple[dict, bytes] | None:
+        line = self._resp.readline()
+        while line and line.strip() != self._boundary:
+            line = self._resp.readline()
+        if not line:
+            return None
+        headers = {}
+        while (line := self._resp.readline().strip()):
+            k, _, v = line.partition(b":")
+            headers[k.strip().lower()] = v.strip()
+        n = int(headers.get(b"content-length", b"-1"))
+        if n < 0:
+            raise ValueError("MJPEG part without Content-Length")
+        return headers, self._resp.read(n)
+
+    def close(self) -> None:
+        self._resp.close()
 
 
 def _as_index(source) -> int | None:

@@ -224,3 +224,21 @@ def test_csv_writer_and_annotation(tmp_path):
     assert r0["detector"] == "aruco" and r0["t_us"] == "123"
     img = annotate(frame, dets, h)
     assert img.shape == frame.shape and (img != frame).any()
+
+
+def test_stream_clock_stamps_frames_with_the_simulator_time():
+    w = scene(4, markers=True)
+    w.step(1.5)
+    m = WebcamModel(w)
+    with WebcamServer(m) as cam:
+        with FrameSource(cam.url, clock="stream") as src:
+            t_us, frame = src.read()
+            assert t_us == 1_500_000 and frame.shape == (480, 640, 3)
+            w.step(0.25)
+            while (got := src.read())[0] == 1_500_000:
+                pass
+            assert got[0] == 1_750_000
+        with pytest.raises(OSError, match="not an MJPEG stream"):
+            FrameSource(cam.url.replace("stream.mjpg", "calibration.json"), clock="stream")
+    with pytest.raises(OSError, match="http:// URL"):
+        FrameSource("clip.avi", clock="stream")

@@ -34,6 +34,7 @@ def gt(*args, timeout=90):
 
 def test_publishes_poses_liveliness_and_status_over_zenoh(router, tmp_path):
     w = _world()
+    w.step(2.0)                                      # robots stand still; the clock runs
     got, alive, status = [], [], []
     lock = threading.Lock()
     with WebcamServer(w) as cam, open_session(ZenohSettings(mode="client", connect=[router.endpoint])) as s:
@@ -52,7 +53,7 @@ def test_publishes_poses_liveliness_and_status_over_zenoh(router, tmp_path):
         base = cam.url.rsplit("/", 1)[0]
         r = gt("--video", cam.url, "--calibration", f"{base}/calibration.json", "--marker", "3=zumo1",
                "--marker", "4=zumo2", "--max-frames", "30", "--csv", str(tmp_path / "gt.csv"),
-               "--name", "cam1", "-m", "client", "-e", router.endpoint)
+               "--name", "cam1", "--clock", "stream", "-m", "client", "-e", router.endpoint)
         assert r.returncode == 0, r.stderr
         assert "30 frames" in r.stdout and "zumo1, zumo2" in r.stdout
     with lock:
@@ -63,6 +64,7 @@ def test_publishes_poses_liveliness_and_status_over_zenoh(router, tmp_path):
         assert all(isinstance(m, GroundTruthPose) and m.detector == "aruco" for m in poses)
         assert poses[-1].x == pytest.approx(0.5, abs=0.005) and poses[-1].y == pytest.approx(0.9, abs=0.005)
         assert poses[-1].yaw == pytest.approx(0.5, abs=0.05)
+        assert poses[-1].stamp_us == 2_000_000           # --clock stream: the simulator's time
         assert "arena/alive/groundtruth/cam1" in alive
         assert status and isinstance(status[-1], Status) and status[-1].counters["frames"] == 30
         assert status[-1].counters["detections"] == 60
@@ -107,6 +109,7 @@ def test_sample_hsv_prints_a_range_for_the_lab_config(tmp_path):
     (["--video", "{video}", "--calibration", "{cal}", "--robot", "zumo1"], "NAME=COLOUR"),
     (["--video", "{video}", "--calibration", "{cal}", "--marker", "x=zumo1"], "integer ID"),
     (["--video", "{video}", "--sample-hsv", "9999,9999"], "outside"),
+    (["--video", "{video}", "--calibration", "{cal}", "--clock", "stream"], "http:// URL"),
 ])
 def test_user_errors_are_clear_and_exit_2(tmp_path, capsys, args, message):
     m = WebcamModel(_world())
