@@ -59,6 +59,7 @@ def project(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
 class _TrackView:
     msg: Track
     seen: float  # monotonic s
+    latency_ms: float | None = None  # edge publish of the slice -> received here (wall clocks)
     trail_m: deque = field(default_factory=lambda: deque(maxlen=300))
     trail_px: deque = field(default_factory=lambda: deque(maxlen=300))
 
@@ -135,6 +136,8 @@ class ViewerState:
             if tv is None:
                 tv = self._tracks[key] = _TrackView(msg, now)
             tv.msg, tv.seen = msg, now
+            edge_ns = msg.edge_publish_ns or msg.tracker_publish_ns
+            tv.latency_ms = (time.time_ns() - edge_ns) / 1e6 if edge_ns else None
             tv.trail_m.append((round(msg.x, 4), round(msg.y, 4)))
             uv = self._track_pixel(msg)
             if uv is not None:
@@ -235,6 +238,7 @@ class ViewerState:
                     "box_px": self._box_px(m.x, m.y, m.yaw, uv) if uv else None,
                     "heading_px": self._heading_px(m.x, m.y, m.yaw, uv) if uv else None,
                     "trail_m": list(tv.trail_m), "trail_px": list(tv.trail_px), "age_s": round(now - tv.seen, 2),
+                    "latency_ms": _r(tv.latency_ms, 1),
                 })
             gts = []
             for robot, (g, seen) in sorted(self._gt.items()):

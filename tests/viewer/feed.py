@@ -71,7 +71,8 @@ def main(endpoint: str, seconds: float) -> None:
         while (now := time.monotonic() - t0) < seconds:
             t_us = int(now * 1e6)
             poses = [pose(0, now), pose(1, now)]
-            s.put("arena/events/cam0", window(seq, t_us, poses, rng).encode())
+            win = window(seq, t_us, poses, rng)
+            s.put("arena/events/cam0", win.encode())
             if seq % 3 == 0:
                 for i, (x, y, yaw) in enumerate(poses):
                     name = f"zumo{i + 1}"
@@ -79,7 +80,8 @@ def main(endpoint: str, seconds: float) -> None:
                     s.put(f"arena/robots/{name}", Track(track_id=i + 1, robot=name, camera="cam0", stamp_us=t_us,
                                                          x=x, y=y, yaw=yaw, vx=0.25 * math.cos(yaw),
                                                          vy=0.25 * math.sin(yaw), u_px=u, v_px=v,
-                                                         n_events=600).encode())
+                                                         n_events=600, edge_publish_ns=win.publish_ns,
+                                                         tracker_publish_ns=time.time_ns()).encode())
                     s.put(f"arena/groundtruth/{name}", GroundTruthPose(robot=name, stamp_us=t_us, x=x + 0.01, y=y,
                                                                        yaw=yaw, detector="sim").encode())
                     s.put(f"arena/telemetry/{name}", Telemetry(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import socket
 import threading
+import time
 import urllib.error
 import urllib.request
 
@@ -55,7 +56,8 @@ def test_tracks_projected_with_the_calibration_when_they_carry_no_pixels():
     st = ViewerState(H_arena_to_px=H)
     st.on_track("arena/robots/a", Track(track_id=1, robot="a", x=1.0, y=0.5, yaw=0.0))
     st.on_track("arena/robots/a", Track(track_id=1, robot="a", x=1.1, y=0.5, yaw=0.0))
-    st.on_track("arena/robots/7", Track(track_id=7, x=0.2, y=0.2, u_px=10.0, v_px=20.0))
+    st.on_track("arena/robots/7", Track(track_id=7, x=0.2, y=0.2, u_px=10.0, v_px=20.0,
+                                        edge_publish_ns=time.time_ns() - 25_000_000))
     snap = {t["key"]: t for t in st.snapshot()["tracks"]}
     a = snap["arena/robots/a"]
     assert a["uv"] == pytest.approx(to_px(1.1, 0.5), abs=0.2)
@@ -64,6 +66,7 @@ def test_tracks_projected_with_the_calibration_when_they_carry_no_pixels():
     xs = [c[0] for c in a["box_px"]]
     assert max(xs) - min(xs) == pytest.approx(0.10 * 130, abs=0.5)  # 10 cm robot at 130 px/m
     assert snap["arena/robots/7"]["uv"] == [10.0, 20.0] and snap["arena/robots/7"]["label"] == "#7"
+    assert 25 <= snap["arena/robots/7"]["latency_ms"] < 5_000 and a["latency_ms"] is None
     nocal = ViewerState()
     nocal.on_track("arena/robots/a", Track(track_id=1, x=1.0, y=0.5))
     t = nocal.snapshot()["tracks"][0]

@@ -108,7 +108,7 @@ function drawTracks(s) {
     const hd = t.yaw === null ? null : ((((t.yaw * 180) / Math.PI + 180) % 360) + 360) % 360 - 180;
     return `<tr data-track="${esc(t.key)}"><td style="color:${colour(t.label)}">${esc(t.label)}</td><td>${fmt(t.x, 3)}</td>` +
       `<td>${fmt(t.y, 3)}</td><td>${fmt(hd, 0)}</td><td>${fmt(t.speed, 2)}</td><td>${esc(t.state)}</td>` +
-      `<td>${t.n_events}</td><td>${fmt(err, 3)}</td></tr>`;
+      `<td>${t.n_events}</td><td>${fmt(err, 3)}</td><td>${fmt(t.latency_ms, 0)}</td></tr>`;
   }).join("");
 }
 
