@@ -147,3 +147,28 @@ def test_bad_sources_say_what_to_do(url, match):
         pass
     with pytest.raises(SourceError, match=match):
         open_source(url)
+
+
+def test_tcp_garbage_is_counted_not_fatal():
+    srv = socket.create_server(("127.0.0.1", 0))
+    port = srv.getsockname()[1]
+    junk = np.random.default_rng(7).integers(0, 256, 200_000, dtype=np.uint8).tobytes()
+
+    def serve():
+        conn, _ = srv.accept()
+        conn.sendall(junk)
+        time.sleep(0.5)
+        conn.close()
+
+    th = threading.Thread(target=serve, daemon=True)
+    th.start()
+    with TcpSource(f"tcp://127.0.0.1:{port}?width=64&height=64", backoff_s=0.05) as src:
+        deadline = time.monotonic() + 3
+        n = 0
+        while time.monotonic() < deadline and src.reconnects == 0 and src.bytes_in < len(junk):
+            ev = src.read(timeout=0.05)
+            n += ev.size
+            assert ev.size == 0 or (ev["x"].max() < 64 and ev["y"].max() < 64)
+        assert src.bytes_in == len(junk) and src.invalid > 0
+    th.join(2)
+    srv.close()
