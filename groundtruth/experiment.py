@@ -267,10 +267,17 @@ def run_paper_study(out: Path, quick: bool = False, seed: int = 1, parts=PARTS,
                 log.exception("step %s failed", what)
                 study.failures.append({"step": what, "error": f"{type(exc).__name__}: {exc}"})
             bar.update(1)
-    study.seconds = round(time.perf_counter() - t_start, 1)
-    (out / "study.json").write_text(json.dumps(asdict(study), indent=1) + "\n")
+            study.seconds = round(time.perf_counter() - t_start, 1)
+            _save(out, study)  # partial results survive an interrupted study
+    _save(out, study)
     study.report = write_study_report(out, study, plan)
     return study
+
+
+def _save(out: Path, study: Study) -> None:
+    d = asdict(study)
+    d.pop("report")
+    (out / "study.json").write_text(json.dumps(d, indent=1) + "\n")
 
 
 def _steps(plan: StudyPlan, parts) -> list[tuple[tuple, str]]:
