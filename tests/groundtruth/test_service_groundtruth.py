@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 import threading
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -56,6 +57,12 @@ def test_publishes_poses_liveliness_and_status_over_zenoh(router, tmp_path):
                "--name", "cam1", "--clock", "stream", "-m", "client", "-e", router.endpoint)
         assert r.returncode == 0, r.stderr
         assert "30 frames" in r.stdout and "zumo1, zumo2" in r.stdout
+        deadline = time.monotonic() + 5.0            # let the last samples arrive (loaded CI)
+        while time.monotonic() < deadline:
+            with lock:
+                if status and status[-1].counters.get("frames") == 30:
+                    break
+            time.sleep(0.05)
     with lock:
         keys = {k for k, _ in got}
         assert keys == {"arena/groundtruth/zumo1", "arena/groundtruth/zumo2"}
