@@ -73,19 +73,22 @@ def register_replay(sub) -> None:
     p.set_defaults(func=run_replay)
 
 
-def _name(value: str | None, prefix: str) -> str:
-    name = value or f"{prefix}-{os.getpid()}"
+def _name(value: str | None, command: str, prefix: str) -> str | None:
+    """The service name (``--name`` or ``<prefix>-<pid>``); None after printing why it is invalid."""
     try:
-        return validate_name(name, "--name")
+        return validate_name(value or f"{prefix}-{os.getpid()}", "--name")
     except InvalidKey as exc:
-        raise SystemExit(f"arena {prefix}: {exc}") from None
+        print(f"arena {command}: {exc}", file=sys.stderr)
+        return None
 
 
 def run_record(args) -> int:
     """Run ``arena record``; returns the exit code."""
     from recorder.service import record
 
-    name = _name(args.name, "recorder")
+    name = _name(args.name, "record", "recorder")
+    if name is None:
+        return 2
     if args.duration is not None and args.duration <= 0:
         print("arena record: --duration must be > 0 seconds", file=sys.stderr)
         return 2
@@ -125,7 +128,9 @@ def run_replay(args) -> int:
     from arena.service import Service
     from recorder.service import replay
 
-    name = _name(args.name, "replay")
+    name = _name(args.name, "replay", "replay")
+    if name is None:
+        return 2
     if args.speed < 0:
         print("arena replay: --speed must be >= 0 (0 means as fast as possible)", file=sys.stderr)
         return 2

@@ -205,3 +205,17 @@ def test_replay_loop_stops_cleanly_on_sigterm(router, tmp_path):
                 proc.kill()
     assert len(got) >= 15
     assert proc.returncode == 0 and "replayed" in out and "1 pass" in out, out
+
+
+def test_cli_input_errors_exit_2_with_a_message(tmp_path, capsys):
+    from arena.cli import main
+
+    assert main(["record", str(tmp_path / "missing" / "run.mcap")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["record", str(tmp_path / "run.mcap"), "--duration", "0"]) == 2
+    assert "--duration" in capsys.readouterr().err
+    assert main(["record", str(tmp_path / "run.mcap"), "--name", "a/b"]) == 2
+    assert "--name" in capsys.readouterr().err
+    (tmp_path / "run.mcap").write_bytes(b"")
+    assert main(["replay", str(tmp_path / "run.mcap"), "--speed", "-1"]) == 2
+    assert "--speed" in capsys.readouterr().err
