@@ -177,9 +177,14 @@ def _matcher(keys: Iterable[str] | None):
     except Exception as exc:  # zenoh.ZError for an invalid expression
         raise RunFileError(f"invalid key expression in {list(keys)}: {exc}") from None
 
+    seen: dict[str, bool] = {}  # one answer per topic
+
     def match(key: str) -> bool:
-        k = zenoh.KeyExpr(key)
-        return any(k.intersects(e) for e in exprs)
+        ok = seen.get(key)
+        if ok is None:
+            k = zenoh.KeyExpr(key)
+            ok = seen[key] = any(k.intersects(e) for e in exprs)
+        return ok
 
     return match
 
