@@ -25,7 +25,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from robot_bridge.control import MissionRunner, path_error  # noqa: E402
+from robot_bridge.control import MissionRunner, PoseEstimator, path_error  # noqa: E402
 from robot_bridge.missions import build_mission, mission_speed  # noqa: E402
 from robot_bridge.odometry import WheelGeometry  # noqa: E402
 from simulator.world import RobotSpec, World  # noqa: E402
@@ -34,13 +34,30 @@ from simulator.world import RobotSpec, World  # noqa: E402
 def simulate(pattern: str, params: dict, power: float, mode: str, seed: int = 0, link_ms: float = 20.0,
              telemetry_hz: float = 100.0, track_hz: float = 100.0, track_delay_ms: float = 60.0,
              track_noise_m: float = 0.005, track_yaw_noise_rad: float = math.radians(3.0),
-             track_width_m: float | None = None, start=(0.9, 0.6, math.pi / 2), max_time_s: float = 60.0):
-    """Run one mission in simulated time; return (PathError, traced (n, 2), mission, seconds)."""
+             track_width_m: float | None = None, start=(0.9, 0.6, math.pi / 2), max_time_s: float = 60.0,
+             tracker: bool = False, tracker_latency_ms: float = 20.0, track_age_s: float = 0.0):
+    """Run one mission in simulated time; return (PathError, traced (n, 2), mission, seconds).
+
+    With ``tracker=True`` closed loop runs on the real pipeline: the simulator's DVS sensor
+    renders events, ``tracker.pipeline.Pipeline`` (fleet tracker) turns each 10 ms slice into
+    tracks, which reach the bridge ``tracker_latency_ms`` after the slice ends.
+    """
     world = World([RobotSpec("r0", (30, 30, 30), start=start)], seed=seed)
     rng = np.random.default_rng(seed + 1000)
+    sim = pipe = None
+    if tracker and mode == "closed":
+        from simulator.camera import CeilingCamera
+        from simulator.simulation import Simulation
+        from tracker.calibration import Calibration
+        from tracker.pipeline import Pipeline
+
+        cam = CeilingCamera(640, 480, world.arena_m, seed=seed)
+        sim = Simulation(world, cam, seed=seed)
+        pipe = Pipeline(Calibration.from_dict(cam.calibration()), fleet_size=1)
+        slice_events = []
     geometry = WheelGeometry(track_width_m=track_width_m or 0.11)
     mission = build_mission(pattern, params, start, mission_speed(power=power))
-    runner = MissionRunner(mission, geometry, mode=mode)
+    runner = MissionRunner(mission, geometry, mode=mode, estimator=PoseEstimator(delay_s=track_age_s))
     dt = 0.001
     tel_period = 1.0 / telemetry_hz
     trk_period = 1.0 / track_hz
@@ -53,7 +70,17 @@ def simulate(pattern: str, params: dict, power: float, mode: str, seed: int = 0,
     t = 0.0
     started = False
     while t < max_time_s:
-        world.step(dt)
+        if sim is not None:
+            ev, _, _ = sim.run(1)
+            slice_events.append(ev)
+            if len(slice_events) == 10:          # one 10 ms slice -> tracker
+                for tr in pipe.push(np.concatenate(slice_events), sim.t_us + 1):
+                    if tr.state == "confirmed":
+                        tracks.append((t + tracker_latency_ms / 1000.0, tr.t_us / 1e6, tr.x, tr.y,
+                                       tr.yaw if math.isfinite(tr.yaw) else None))
+                slice_events = []
+        else:
+            world.step(dt)
         t += dt
         x, y, yaw = world.pose(0)
         truth.append((t, x, y, yaw))
@@ -62,8 +89,9 @@ def simulate(pattern: str, params: dict, power: float, mode: str, seed: int = 0,
         if t >= next_tel:
             next_tel += tel_period
             el, er = world.encoder_counts(0)
-            up.append((t + link_ms / 1000.0, el, er, t))
-        if mode == "closed" and t >= next_trk:
+            gz = float(world.imu(0)["gyro"][2])
+            up.append((t + link_ms / 1000.0, el, er, t, gz))
+        if mode == "closed" and sim is None and t >= next_trk:
             next_trk += trk_period
             tp = t - track_delay_ms / 1000.0
             while len(truth) > 1 and truth[1][0] <= tp:
@@ -76,8 +104,8 @@ def simulate(pattern: str, params: dict, power: float, mode: str, seed: int = 0,
             _, tp, tx, ty, tyaw = tracks.popleft()
             runner.add_track(tp, tx, ty, tyaw)
         while up and up[0][0] <= t:
-            _, el, er, tr = up.popleft()
-            out = runner.update(t, el, er, t_robot=tr)
+            _, el, er, tr, gz = up.popleft()
+            out = runner.update(t, el, er, t_robot=tr, gyro_z=gz)
             started = True
             down.append((t + link_ms / 1000.0, out.left, out.right))
             if out.done:
@@ -104,10 +132,16 @@ def main(argv=None) -> int:
     ap.add_argument("--track-noise-cm", type=float, default=0.5, help="track position noise, 1 sigma, cm")
     ap.add_argument("--track-yaw-noise-deg", type=float, default=3.0, help="track heading noise, 1 sigma, deg")
     ap.add_argument("--track-hz", type=float, default=100.0, help="track rate, Hz")
+    ap.add_argument("--tracker", action="store_true",
+                    help="closed loop on the real tracker fed by the simulated event camera (slower)")
     args = ap.parse_args(argv)
     cases = [("circle", {"radius_m": 0.3}), ("square", {"side_m": 0.6})]
-    print(f"link {args.link_ms:.0f} ms, tracks {args.track_hz:.0f} Hz delayed {args.track_delay_ms:.0f} ms, "
-          f"noise {args.track_noise_cm} cm / {args.track_yaw_noise_deg} deg; {args.seeds} seed(s)")
+    if args.tracker:
+        print(f"link {args.link_ms:.0f} ms, closed loop on tracker.pipeline tracks from the simulated DVS; "
+              f"{args.seeds} seed(s)")
+    else:
+        print(f"link {args.link_ms:.0f} ms, tracks {args.track_hz:.0f} Hz delayed {args.track_delay_ms:.0f} ms, "
+              f"noise {args.track_noise_cm} cm / {args.track_yaw_noise_deg} deg; {args.seeds} seed(s)")
     print(f"{'mission':<22}{'power':>6}  {'paper mean cm':>14}{'closed mean cm':>16}{'ratio':>8}"
           f"  {'paper max':>10}{'closed max':>11}")
     ratios = []
@@ -118,7 +152,8 @@ def main(argv=None) -> int:
                 errs = [simulate(pattern, params, power, mode, seed=s, link_ms=args.link_ms,
                                  track_hz=args.track_hz, track_delay_ms=args.track_delay_ms,
                                  track_noise_m=args.track_noise_cm / 100,
-                                 track_yaw_noise_rad=math.radians(args.track_yaw_noise_deg))[0]
+                                 track_yaw_noise_rad=math.radians(args.track_yaw_noise_deg),
+                                 tracker=args.tracker)[0]
                         for s in range(args.seeds)]
                 res[mode] = (np.mean([e.mean_m for e in errs]), np.mean([e.max_m for e in errs]))
             ratio = res["paper"][0] / res["closed"][0]

@@ -108,18 +108,41 @@ class PoseEstimator:
     carries forward to now through odometry. Tracks whose yaw disagrees by more than
     ``max_yaw_jump`` (a 180 degree heading flip) correct position only.
 
+    Odometry takes its heading from the gyro, which is good for many seconds, so track
+    headings only trim its slow drift: they are used while the robot drives (not while it
+    stands or spins faster than ``max_spin_radps``: event-camera headings lag and flip
+    there) and only within ``max_yaw_jump`` of the fused heading. A track further than
+    ``max_jump_m`` from the fused position is an outlier, unless ``relock_after`` come in a
+    row (then the estimate re-locks onto the tracks). Position innovations are split: across
+    the heading they are blended at ``pos_gain``, along it at the much smaller ``along_gain``:
+    encoders measure distance travelled well, while event-camera tracks lag along the motion
+    (the centroid of a t_a window trails the robot).
+
     Args:
         stale_s: a track older than this no longer counts as fresh (source = ``odometry``).
         pos_gain, yaw_gain: blend factors in (0, 1] of a track into the fused pose.
+        delay_s: extra age of every track pose beyond its stamp, s: the tracking pipeline's
+            own lag (measure it once against ground truth).
     """
 
-    def __init__(self, stale_s: float = 0.3, pos_gain: float = 0.5, yaw_gain: float = 0.3,
-                 history_s: float = 3.0, max_yaw_jump: float = math.radians(60)):
+    def __init__(self, stale_s: float = 0.3, pos_gain: float = 0.3, yaw_gain: float = 0.02,
+                 history_s: float = 3.0, max_yaw_jump: float = math.radians(30), delay_s: float = 0.0,
+                 max_spin_radps: float = 1.0, max_jump_m: float = 0.15, relock_after: int = 25,
+                 along_gain: float = 0.02):
         self.stale_s = stale_s
+        self.delay_s = delay_s
+        self.max_spin_radps = max_spin_radps
         self.pos_gain = pos_gain
         self.yaw_gain = yaw_gain
         self.history_s = history_s
         self.max_yaw_jump = max_yaw_jump
+        self.max_jump_m = max_jump_m
+        self.along_gain = along_gain
+        self.relock_after = relock_after
+        self._outliers = 0
+        self._yaw_outliers = 0
+        self._yaw_known = False
+        self._pos_known = False
         self._T = (0.0, 0.0, 0.0)
         self._times: deque[float] = deque()
         self._odo: deque[tuple[float, float, float]] = deque()
@@ -150,29 +173,58 @@ class PoseEstimator:
         return (a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), wrap_angle(a[2] + f * wrap_angle(b[2] - a[2])))
 
     def set_pose(self, pose) -> None:
-        """Declare the current fused pose (e.g. the known start pose)."""
+        """Declare the current fused pose (e.g. the known start pose, heading included)."""
+        self._yaw_known = self._pos_known = True
         if self._odo:
             self._T = compose(tuple(pose), inverse(self._odo[-1]))
         else:
             self._T = tuple(pose)
 
     def add_track(self, t_pose: float, x: float, y: float, yaw: float | None) -> bool:
-        """Blend a track pose measured at host time ``t_pose``; returns False if it was unusable
-        (older than the odometry history)."""
+        """Blend a track pose measured at host time ``t_pose``; returns False if it was not used
+        (older than the odometry history, or an outlier)."""
+        t_pose -= self.delay_s
         odo = self._odo_at(t_pose)
         if odo is None:
             self.tracks_rejected += 1
             return False
         fused = compose(self._T, odo)
-        first = self.last_track_t is None
-        gp = 1.0 if first else self.pos_gain
-        nx = fused[0] + gp * (x - fused[0])
-        ny = fused[1] + gp * (y - fused[1])
+        jump = math.hypot(x - fused[0], y - fused[1])
+        if self._pos_known and jump > self.max_jump_m and self._outliers < self.relock_after:
+            self._outliers += 1          # an ID switch or a glitch; many in a row: re-lock on the tracks
+            self.tracks_rejected += 1
+            return False
+        relock = not self._pos_known or self._outliers >= self.relock_after
+        self._outliers = 0
+        self._pos_known = True
+        ex, ey = x - fused[0], y - fused[1]
+        if relock:
+            nx, ny = x, y
+        else:  # cross-track at pos_gain; along the heading (where tracks lag) at along_gain
+            c, s_ = math.cos(fused[2]), math.sin(fused[2])
+            e_along = c * ex + s_ * ey
+            e_cross = -s_ * ex + c * ey
+            ga, gc = self.along_gain * e_along, self.pos_gain * e_cross
+            nx = fused[0] + c * ga - s_ * gc
+            ny = fused[1] + s_ * ga + c * gc
         nth = fused[2]
-        if yaw is not None:
+        if yaw is not None and math.isfinite(yaw):
+            before = self._odo_at(t_pose - 0.2)
+            steady = before is not None and (
+                abs(wrap_angle(odo[2] - before[2])) / 0.2 <= self.max_spin_radps
+                and math.hypot(odo[0] - before[0], odo[1] - before[1]) >= 0.01)   # driving, not spinning
             dyaw = wrap_angle(yaw - fused[2])
-            if first or abs(dyaw) <= self.max_yaw_jump:
-                nth = wrap_angle(fused[2] + (1.0 if first else self.yaw_gain) * dyaw)
+            if not self._yaw_known:
+                nth = yaw
+                self._yaw_known = True
+            elif steady and abs(dyaw) <= self.max_yaw_jump:
+                nth = wrap_angle(fused[2] + self.yaw_gain * dyaw)
+                self._yaw_outliers = 0
+            elif steady:
+                self._yaw_outliers += 1   # driving steadily yet far off: after many, trust the tracks
+                if self._yaw_outliers >= 4 * self.relock_after:
+                    nth = yaw
+                    self._yaw_outliers = 0
         self._T = compose((nx, ny, nth), inverse(odo))
         self.last_track_t = t_pose if self.last_track_t is None else max(self.last_track_t, t_pose)
         self.tracks_used += 1
@@ -281,11 +333,13 @@ class MissionRunner:
         if self.index >= len(self.mission.segments):
             self.done = True
 
-    def update(self, t: float, enc_left: int, enc_right: int, t_robot: float | None = None) -> ControlOutput:
+    def update(self, t: float, enc_left: int, enc_right: int, t_robot: float | None = None,
+               gyro_z: float | None = None) -> ControlOutput:
         """Advance with an encoder sample at host time ``t`` s (``t_robot``: robot clock, s,
-        used for wheel speeds when given). Returns the motor command."""
+        used for wheel speeds and gyro integration when given; ``gyro_z``: IMU yaw rate, rad/s).
+        Returns the motor command."""
         tr = t if t_robot is None else t_robot
-        pose_odo = self.odometry.update(enc_left, enc_right)
+        pose_odo = self.odometry.update(enc_left, enc_right, gyro_z, tr)
         self.estimator.add_odometry(t, pose_odo)
         if not self._started:
             self._started = True

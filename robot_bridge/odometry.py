@@ -5,7 +5,8 @@ Encoder counts are cumulative per side; forward is positive.
 
 Tracked robots skid when they turn, so the *effective* track width that maps the tread
 speed difference to the yaw rate is larger than the distance between the treads (by
-15-30 % on Zumo-class robots). :func:`calibrate_track_width` measures it from a spin.
+15-30 % on Zumo-class robots, more in fast turns). :func:`calibrate_track_width` measures
+it from a spin; better, :class:`Odometry` takes the heading from the IMU gyro when given.
 """
 
 from __future__ import annotations
@@ -63,7 +64,10 @@ class Odometry:
         self.geometry = geometry
         self.x, self.y, self.yaw = (float(v) for v in pose)
         self.distance_m = 0.0   # total path length driven (mean of both treads), m
+        self.gyro_bias = 0.0    # learned yaw-rate bias, rad/s
         self._last: tuple[int, int] | None = None
+        self._last_still: tuple[int, int] = (0, 0)
+        self._last_gyro: tuple[float | None, float | None] = (None, None)
 
     @property
     def pose(self) -> tuple[float, float, float]:
@@ -74,10 +78,20 @@ class Odometry:
         """Set the pose (keeps the latched counts, so the next increment is still correct)."""
         self.x, self.y, self.yaw = (float(v) for v in pose)
 
-    def update(self, enc_left: int, enc_right: int) -> tuple[float, float, float]:
-        """Integrate from the previous counts to these (midpoint rule); return the pose."""
+    def update(self, enc_left: int, enc_right: int, gyro_z: float | None = None,
+               t: float | None = None) -> tuple[float, float, float]:
+        """Integrate from the previous sample to this one (midpoint rule); return the pose.
+
+        Args:
+            enc_left, enc_right: cumulative encoder counts.
+            gyro_z: yaw rate from the IMU, rad/s (body z up). When given with ``t``, the heading
+                is integrated from the gyro instead of the tread difference (tracked robots
+                skid in turns, the gyro does not); its bias is learned while the treads stand still.
+            t: sample time, s (the robot's clock).
+        """
         if self._last is None:
             self._last = (enc_left, enc_right)
+            self._last_gyro = (gyro_z, t)
             return self.pose
         mpc = self.geometry.m_per_count
         dl = (enc_left - self._last[0]) * mpc
@@ -85,6 +99,13 @@ class Odometry:
         self._last = (enc_left, enc_right)
         ds = 0.5 * (dl + dr)
         dth = (dr - dl) / self.geometry.track_width_m
+        g0, t0 = self._last_gyro
+        self._last_gyro = (gyro_z, t)
+        if gyro_z is not None and t is not None and g0 is not None and t0 is not None and 0 < t - t0 < 0.5:
+            if enc_left == self._last_still[0] and enc_right == self._last_still[1]:
+                self.gyro_bias += 0.05 * (gyro_z - self.gyro_bias)   # standing still: learn the bias
+            dth = (0.5 * (g0 + gyro_z) - self.gyro_bias) * (t - t0)
+        self._last_still = (enc_left, enc_right)
         mid = self.yaw + 0.5 * dth
         self.x += ds * math.cos(mid)
         self.y += ds * math.sin(mid)

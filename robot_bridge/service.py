@@ -289,12 +289,13 @@ class RobotHandle:
             self._prev = (t_us, tel.enc_left, tel.enc_right)
             self.battery_mv = tel.battery_mv
             if gap and self.mission_log is not None:
-                self.mission_log.gap(now_ns, (fr.seq - gap) & 0xFFFF, gap, self.runner.phase if self.runner else "")
+                self.mission_log.gap(now_ns, seq - gap, gap, self.runner.phase if self.runner else "")
             phase = None
             if self.runner is not None:
                 phase = self._control(tel, now_ns, t_us)
             else:
-                self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(tel.enc_left, tel.enc_right))
+                self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(
+                    tel.enc_left, tel.enc_right, tel.gyro_si[2], t_us / 1e6))
             if self.mission_log is not None:
                 self.mission_log.sample(Sample(now_ns, t_us, seq, tel.enc_left, tel.enc_right, *self._speeds,
                                                tel.accel_si, tel.gyro_si, tel.mag_si, tel.battery_mv,
@@ -315,7 +316,8 @@ class RobotHandle:
         """One control step of the running mission (lock held); returns the phase."""
         runner = self.runner
         if self.start_at_ns is not None and now_ns < self.start_at_ns:
-            self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(tel.enc_left, tel.enc_right))
+            self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(
+                tel.enc_left, tel.enc_right, tel.gyro_si[2], t_us / 1e6))
             return "waiting"
         if self.estop:
             self._end_mission("e-stop")
@@ -327,7 +329,8 @@ class RobotHandle:
             self._stop_motors()
             return "low battery"
         try:
-            out = runner.update(now_ns / 1e9, tel.enc_left, tel.enc_right, t_robot=t_us / 1e6)
+            out = runner.update(now_ns / 1e9, tel.enc_left, tel.enc_right, t_robot=t_us / 1e6,
+                                gyro_z=tel.gyro_si[2])
         except Exception as exc:  # noqa: BLE001 - a mission bug must stop the robot, not the bridge
             log.exception("robot %s: mission crashed", self.name)
             self._end_mission(f"failed: mission crashed: {exc!r}")

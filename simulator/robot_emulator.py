@@ -109,7 +109,8 @@ class RobotEmulatorServer:
         faults: link faults to inject.
         seed: seed of the fault draws.
         record_telemetry: keep every clean TELEMETRY sent, keyed by seq, in
-            :attr:`sent_telemetry` (for tests that check nothing corrupt was logged).
+            :attr:`sent_telemetry`, and the seqs of corrupted frames in :attr:`corrupted_seqs`
+            (for tests that check nothing corrupt was logged; memory grows with time).
     """
 
     def __init__(self, world, robot_index: int, host: str = "127.0.0.1", port: int = 0,
@@ -127,6 +128,8 @@ class RobotEmulatorServer:
         self.faults = faults or LinkFaults()
         self.stats = EmulatorStats()
         self.sent_telemetry: dict[int, P.Telemetry] | None = {} if record_telemetry else None
+        #: seq numbers of the frames that got an injected bit flip (with ``record_telemetry``)
+        self.corrupted_seqs: set[int] = set()
         self._rng = random.Random(seed)
         self._lock = threading.RLock()
         self._stop = threading.Event()
@@ -313,6 +316,8 @@ class RobotEmulatorServer:
                 i = self._rng.randrange(len(data) - 1)
                 data[i] ^= 1 << self._rng.randrange(8)
                 self.stats.frames_corrupted += 1
+                if self.sent_telemetry is not None:
+                    self.corrupted_seqs.add(seq)
             if f.byte_loss:
                 kept = bytearray(b for b in data if self._rng.random() >= f.byte_loss)
                 self.stats.bytes_dropped += len(data) - len(kept)

@@ -47,7 +47,7 @@ def test_wheel_pid_feedforward_and_integral():
 
 
 def test_pose_estimator_compensates_track_latency():
-    est = PoseEstimator(pos_gain=1.0, yaw_gain=1.0)
+    est = PoseEstimator(pos_gain=1.0, along_gain=1.0, yaw_gain=1.0)
     # odometry says the robot drives +x at 0.2 m/s but reports 10 % short (slip)
     for k in range(101):
         t = k * 0.01
@@ -84,3 +84,36 @@ def test_closed_loop_beats_paper_mode_5x_in_the_simulator(pattern, params):
     assert closed.mean_m * 5 <= paper.mean_m
     assert closed.coverage_m < 0.02                  # and the whole shape was traced
     assert t < 1.5 * mission.length_m / mission.speed_mps + 8
+
+
+def test_gyro_heading_beats_skidding_treads_and_learns_bias():
+    g = WheelGeometry()
+    odo = Odometry(g, (0.0, 0.0, 0.0))
+    bias = 0.02
+    t = 0.0
+    odo.update(0, 0, bias, t)
+    for _ in range(200):          # 2 s standing still: the gyro reads only its bias
+        t += 0.01
+        odo.update(0, 0, bias, t)
+    assert odo.gyro_bias == pytest.approx(bias, rel=0.05)
+    assert abs(odo.yaw) < 0.02
+    quarter = int(round(math.pi / 2 * g.track_width_m / 2 / g.m_per_count))
+    for k in range(1, 101):       # treads say 90 degrees, the robot skids and turns 70
+        t += 0.01
+        odo.update(-quarter * k // 100, quarter * k // 100, math.radians(70) + bias, t)
+    assert odo.yaw == pytest.approx(math.radians(70), abs=math.radians(1.5))
+
+
+def test_estimator_trusts_tracks_across_but_not_along_the_motion_and_drops_outliers():
+    est = PoseEstimator()
+    for k in range(101):
+        est.add_odometry(k * 0.01, (0.2 * k * 0.01, 0.0, 0.0))   # driving +x
+    est.set_pose((0.2, 0.0, 0.0))
+    for _ in range(30):   # tracks 3 cm behind (lag) and 2 cm to the left
+        est.add_track(1.0, 0.17, 0.02, None)
+    x, y, _ = est.pose()
+    assert y == pytest.approx(0.02, abs=1e-3)        # cross-track: follows the tracks
+    assert x > 0.2 - 0.03 * 0.5                     # along-track: mostly odometry
+    n = est.tracks_rejected
+    assert not est.add_track(1.0, 0.6, 0.02, None)   # 40 cm away: an outlier
+    assert est.tracks_rejected == n + 1
