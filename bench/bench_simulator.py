@@ -19,7 +19,6 @@ import argparse
 import os
 import time
 
-import numpy as np
 
 from simulator.autopilot import Autopilot, make_plans
 from simulator.camera import CeilingCamera

@@ -41,6 +41,13 @@ class Plan:
     start_s: float = 0.0
     stops: list[tuple[float, float]] = field(default_factory=list)   # (t_start s, duration s)
 
+    def arc_length(self) -> np.ndarray:
+        """Cumulative length (m) at each vertex of the closed route, plus the total at the end."""
+        if getattr(self, "_arc", None) is None:
+            seg = np.hypot(*np.diff(np.vstack([self.points, self.points[:1]]), axis=0).T)
+            self._arc = np.concatenate([[0.0], np.cumsum(seg)])
+        return self._arc
+
     def start_pose(self) -> tuple[float, float, float]:
         """Pose (x m, y m, yaw rad) at the start of the route, facing along it."""
         p0, p1 = self.points[0], self.points[1]
@@ -169,17 +176,13 @@ class Autopilot:
         pts = plan.points
         n = len(pts)
         # nearest vertex, searched forward from the last one (figure 8 crosses itself)
-        k0 = self._seg_i[i]
-        window = [(k0 + j) % n for j in range(0, max(4, n // 8))]
-        d = [math.hypot(pts[k, 0] - x, pts[k, 1] - y) for k in window]
-        k = window[int(np.argmin(d))]
+        window = (self._seg_i[i] + np.arange(max(4, n // 8))) % n
+        k = int(window[np.argmin(np.hypot(pts[window, 0] - x, pts[window, 1] - y))])
         self._seg_i[i] = k
-        # look-ahead point along the path
-        acc, j = 0.0, k
-        while acc < self.LOOKAHEAD_M:
-            nj = (j + 1) % n
-            acc += float(np.hypot(*(pts[nj] - pts[j])))
-            j = nj
+        # look-ahead point: the first vertex LOOKAHEAD_M further along the path
+        arc = plan.arc_length()
+        ahead = (arc[k] + self.LOOKAHEAD_M) % arc[-1]
+        j = int(np.searchsorted(arc, ahead)) % n
         tx, ty = pts[j]
         alpha = _wrap(math.atan2(ty - y, tx - x) - yaw)
         return self._steer(i, alpha, math.hypot(tx - x, ty - y), p)

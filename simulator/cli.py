@@ -19,16 +19,13 @@ from contextlib import ExitStack
 from pathlib import Path
 from urllib.parse import urlparse
 
-from simulator.autopilot import PATTERNS, Autopilot, make_plans
-from simulator.camera import CeilingCamera
-from simulator.dvs import DvsParams
-from simulator.evt3 import CameraServer
-from simulator.recording import RawWriter, TruthCsvWriter
-from simulator.scenarios import Scenario
-from simulator.simulation import Simulation
-from simulator.world import LIGHTING_LEVELS, RobotSpec, World
-
 log = logging.getLogger("simulator")
+
+# The parser must not import numba/OpenCV (slow): `--help` and flag errors stay instant.
+# Kept equal to simulator.autopilot.PATTERNS and simulator.world.LIGHTING_LEVELS (tested).
+PATTERN_CHOICES = ("circle", "square", "stopgo", "cross", "figure8", "still")
+LIGHTING_CHOICES = ("full", "dimmed", "dark")
+
 
 EXAMPLES = """\
 Examples:
@@ -63,11 +60,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lab", metavar="TOML", help="lab config: robots, camera size and ports")
     p.add_argument("--robots", type=int, default=None, metavar="N",
                    help="number of robots (default 4, or the lab config's robots)")
-    p.add_argument("--autopilot", choices=("none",) + PATTERNS, default="none",
+    p.add_argument("--autopilot", choices=("none",) + PATTERN_CHOICES, default="none",
                    help="built-in driver (default none: robots obey their firmware link)")
     p.add_argument("--power", type=float, default=1.0,
                    help="autopilot motor power, fraction of full (the paper: 0.5 or 1.0)")
-    p.add_argument("--lighting", choices=LIGHTING_LEVELS, default="full", help="ceiling lighting")
+    p.add_argument("--lighting", choices=LIGHTING_CHOICES, default="full", help="ceiling lighting")
     p.add_argument("--flicker", type=float, default=0.0, metavar="HZ",
                    help="light flicker (100 or 120 Hz); simulates the full frame, not real time")
     p.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")
@@ -91,8 +88,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write the event camera calibration JSON (pixel <-> arena points)")
 
 
-def _robots_from_args(args) -> tuple[list[RobotSpec], dict]:
+def _robots_from_args(args) -> tuple[list, dict]:
     """Robot specs and device options from the flags and the optional lab config."""
+    from simulator.autopilot import make_plans
+    from simulator.scenarios import Scenario
+    from simulator.world import RobotSpec
     opts = {"width": args.width or 640, "height": args.height or 480,
             "camera_port": 9000 if args.camera_port is None else args.camera_port,
             "robot_ports": {}}
@@ -150,6 +150,14 @@ def _check_args(args) -> None:
 def run(args) -> int:
     """Run the simulated arena until --duration or Ctrl-C / SIGTERM. Returns the exit code."""
     _check_args(args)
+    from simulator.autopilot import Autopilot, make_plans
+    from simulator.camera import CeilingCamera
+    from simulator.dvs import DvsParams
+    from simulator.evt3 import CameraServer
+    from simulator.recording import RawWriter, TruthCsvWriter
+    from simulator.simulation import Simulation
+    from simulator.world import World
+
     specs, opts = _robots_from_args(args)
     world = World(specs, lighting=args.lighting, seed=args.seed)
     camera = CeilingCamera(opts["width"], opts["height"], seed=args.seed)
@@ -194,7 +202,7 @@ def run(args) -> int:
     return 0
 
 
-def _start_webcam(stack: ExitStack, world: World, args) -> None:
+def _start_webcam(stack: ExitStack, world, args) -> None:
     try:
         from simulator.webcam import WebcamServer
     except ImportError as e:       # pragma: no cover - the module ships with the package
@@ -207,7 +215,7 @@ def _start_webcam(stack: ExitStack, world: World, args) -> None:
     print(f"webcam   {web.url}", flush=True)
 
 
-def _start_robots(stack: ExitStack, world: World, args, opts) -> None:
+def _start_robots(stack: ExitStack, world, args, opts) -> None:
     from simulator.robot_emulator import RobotEmulatorServer
     for i, spec in enumerate(world.robots):
         port = opts["robot_ports"].get(i, args.robot_base_port + i if args.robot_base_port else 0)
@@ -219,7 +227,9 @@ def _start_robots(stack: ExitStack, world: World, args, opts) -> None:
         print(f"robot    {spec.name:10s} {emu.url}", flush=True)
 
 
-def _loop(sim: Simulation, cam: CameraServer, raw, truth, args, stop) -> None:
+def _loop(sim, cam, raw, truth, args, stop) -> None:
+    """Advance ``sim`` in BLOCK_S blocks, hand events to the camera and recorders, pace to
+    the wall clock unless --fast."""
     steps = max(1, int(round(BLOCK_S * 1e6 / sim.step_us)))
     total = math.inf if not args.duration else int(round(args.duration * 1e6 / sim.step_us))
     done = 0

@@ -29,7 +29,6 @@ import threading
 import numpy as np
 from numba import njit
 
-from arena.events import EVENT_DTYPE
 
 log = logging.getLogger("simulator.evt3")
 

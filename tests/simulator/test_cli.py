@@ -1,0 +1,119 @@
+"""`arena sim` / `python -m simulator` as a user runs it: a real subprocess serving the
+event camera over TCP (decoded with the independent `evt3` package), the webcam and the
+robot links, and writing RAW and truth files."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+evt3 = pytest.importorskip("evt3", reason="the independent EVT3 decoder (pip install evt3)")
+
+
+def _start(*args: str) -> tuple[subprocess.Popen, dict]:
+    proc = subprocess.Popen([sys.executable, "-m", "simulator", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    urls: dict[str, list[str]] = {}
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        m = re.match(r"(camera|webcam|robot)\s+(?:\S+\s+)?((?:tcp|http|socket)://\S+)", line)
+        if m:
+            urls.setdefault(m.group(1), []).append(m.group(2))
+        if line.startswith("running"):
+            return proc, urls
+    proc.kill()
+    raise AssertionError(f"simulator did not start; printed: {proc.stdout.read()!r}")
+
+
+def _stop(proc: subprocess.Popen) -> str:
+    if proc.poll() is None:
+        proc.terminate()
+    out, _ = proc.communicate(timeout=20)
+    return out
+
+
+def test_sim_serves_camera_webcam_robots_and_records(tmp_path):
+    raw, truth = tmp_path / "run.raw", tmp_path / "run.truth.csv"
+    proc, urls = _start("--robots", "2", "--autopilot", "circle", "--camera-port", "0",
+                        "--webcam-port", "0", "--robot-base-port", "0", "--duration", "30",
+                        "--record-raw", str(raw), "--truth-csv", str(truth))
+    try:
+        assert urls["webcam"][0].startswith("http://127.0.0.1:") and urls["webcam"][0].endswith("/stream.mjpg")
+        assert len(urls["robot"]) == 2 and all(u.startswith("socket://127.0.0.1:") for u in urls["robot"])
+        host, port = urls["camera"][0][len("tcp://"):].split(":")
+        with socket.create_connection((host, int(port)), timeout=5) as s:
+            s.settimeout(0.5)
+            buf = bytearray()
+            deadline = time.monotonic() + 2.0
+            while time.monotonic() < deadline:
+                try:
+                    chunk = s.recv(1 << 16)
+                except socket.timeout:
+                    continue
+                if not chunk:
+                    break
+                buf += chunk
+        for u in urls["robot"]:                  # the firmware links accept connections
+            rh, rp = u[len("socket://"):].split(":")
+            socket.create_connection((rh, int(rp)), timeout=5).close()
+    finally:
+        out = _stop(proc)
+    assert "stopped" in out
+    ev = evt3.Decoder(640, 480).feed(bytes(buf))
+    assert len(ev.x) > 1000                       # the robots are driving
+    t = ev.timestamp.astype(np.int64)
+    assert np.all(np.diff(t) >= 0) and t[-1] - t[0] > 500_000
+    assert ev.x.max() < 640 and ev.y.max() < 480
+    f = evt3.decode_file(str(raw))
+    assert len(f.x) >= len(ev.x)
+    lines = truth.read_text().splitlines()
+    assert lines[0] == "t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps" and len(lines) > 100
+
+
+def test_sim_fast_with_duration_exits_by_itself(tmp_path):
+    raw = tmp_path / "fast.raw"
+    r = subprocess.run([sys.executable, "-m", "simulator", "--robots", "1", "--autopilot", "square",
+                        "--fast", "--duration", "1", "--camera-port", "0", "--no-webcam",
+                        "--no-robots", "--record-raw", str(raw), "--width", "320", "--height", "240",
+                        "--calibration-out", str(tmp_path / "cal.json")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    f = evt3.decode_file(str(raw))
+    assert (f.sensor_width, f.sensor_height) == (320, 240) and len(f.x) > 100
+    assert f.timestamp.max() <= 1_000_000
+    cal = json.loads((tmp_path / "cal.json").read_text())
+    assert cal["image_size"] == [320, 240] and len(cal["points"]) >= 4
+
+
+def test_bad_flags_give_a_clear_message_not_a_traceback():
+    r = subprocess.run([sys.executable, "-m", "simulator", "--power", "3"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode != 0 and "--power" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "simulator", "--lab", "/nonexistent/lab.toml"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "lab config" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_help_has_examples():
+    r = subprocess.run([sys.executable, "-m", "arena", "sim", "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "Examples:" in r.stdout and "--camera-port" in r.stdout
+
+
+def test_cli_choices_match_the_library():
+    from simulator.autopilot import PATTERNS
+    from simulator.cli import LIGHTING_CHOICES, PATTERN_CHOICES
+    from simulator.world import LIGHTING_LEVELS
+    assert PATTERN_CHOICES == PATTERNS and LIGHTING_CHOICES == LIGHTING_LEVELS
