@@ -59,6 +59,8 @@ def register(subparsers) -> None:
     r.add_argument("--geofence-margin", type=float, default=None, metavar="M",
                    help="stop a robot whose track comes closer than M metres to the arena edge (default 0.03)")
     r.add_argument("--low-battery-mv", type=int, default=None, help="stop missions below this battery voltage")
+    r.add_argument("--track-delay", type=float, default=None, metavar="S",
+                   help="extra age of track poses (the tracker's own lag), s (default 0)")
     r.add_argument("--baud", type=int, default=None, help="serial baud rate (default 57600, the firmware's)")
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds (tests, demos)")
     add_zenoh_arguments(r)
@@ -158,6 +160,8 @@ def run_service(args) -> int:
         opts.get("geofence_margin_m", o.geofence_margin_m))
     o.low_battery_mv = args.low_battery_mv or int(opts.get("low_battery_mv", o.low_battery_mv))
     o.baudrate = args.baud or int(opts.get("baudrate", o.baudrate))
+    o.track_delay_s = args.track_delay if args.track_delay is not None else float(
+        opts.get("track_delay_s", o.track_delay_s))
     name = args.name or f"bridge-{robots[0].name}"
     stop = stop_on_signals()
     try:

@@ -70,7 +70,7 @@ def test_mission_ack_busy_bad_parameter_and_telemetry(lab):
     (bad,) = ask(s, "r2", "mission", MissionCommand(mission="circle", params={"radius_m": -1}))
     assert not bad.ok and "bad parameter" in bad.error and "radius_m" in bad.error
     (closed,) = ask(s, "r2", "mission", circle(control="closed"))
-    assert not closed.ok and "needs fresh tracks" in closed.error
+    assert not closed.ok and "needs a track of r2" in closed.error
     (led,) = ask(s, "r2", "led", Command(verb="led", params={"rgb": [0, 255, 0]}))
     assert led.ok and wait_for(lambda: lab["emus"][1].led == (0, 255, 0), 1.0)
     (bad_led,) = ask(s, "r2", "led", Command(verb="led", params={"rgb": [0, 999, 0]}))
