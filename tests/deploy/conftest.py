@@ -81,9 +81,10 @@ class Deployment:
         self.router_proc = proc
         return proc
 
-    def client(self, host: str, user: str, *args: str, env: dict | None = None) -> subprocess.Popen:
-        """Start tests/deploy/netclient.py on ``host`` as role ``user``."""
-        return self.lab.spawn(host, [sys.executable, str(NETCLIENT), *args], env=env or self.env(host, user))
+    def client(self, host: str, user: str, *args: str, env: dict | None = None, log: Path | None = None) -> subprocess.Popen:
+        """Start tests/deploy/netclient.py on ``host`` as role ``user`` (output to ``log`` for long runs:
+        a pipe nobody reads fills up and blocks the client)."""
+        return self.lab.spawn(host, [sys.executable, str(NETCLIENT), *args], env=env or self.env(host, user), log=log)
 
 
 def read_events(proc: subprocess.Popen, timeout: float) -> list[dict]:

@@ -5,7 +5,7 @@ It connects through :func:`arena.session.open_session` (so the same settings pat
 with a wall-clock time ``t`` (s), so the test can order what happened on several hosts.
 
     python netclient.py open                       try to connect; prints {"event": "open", "ok": ...}
-    python netclient.py sub KEYEXPR                print every sample received
+    python netclient.py sub KEYEXPR...             print every sample received
     python netclient.py pub KEYEXPR --count 20     publish (a declared publisher, as services do)
     python netclient.py get KEYEXPR                query and print the replies (or errors)
     python netclient.py alive KEYEXPR              print the liveliness tokens alive on KEYEXPR
@@ -47,11 +47,12 @@ def main() -> int:
             if a.mode == "open":
                 return 0
             if a.mode == "sub":
-                sub = session.declare_subscriber(
-                    a.args[0], lambda s: emit("sample", key=str(s.key_expr), size=len(bytes(s.payload))))
+                subs = [session.declare_subscriber(
+                    k, lambda s: emit("sample", key=str(s.key_expr), size=len(bytes(s.payload)))) for k in a.args]
                 emit("ready")
                 stop.wait(a.duration)
-                sub.undeclare()
+                for sub in subs:
+                    sub.undeclare()
             elif a.mode == "pub":
                 pub = session.declare_publisher(a.args[0])
                 time.sleep(0.5)  # let the router's declarations arrive

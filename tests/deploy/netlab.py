@@ -171,6 +171,13 @@ class NetLab:
         """Cut (``up=False``) or restore ``host``'s link to the bridge."""
         _ip("ip", "link", "set", self.veth(host), "up" if up else "down")
 
+    def netem_available(self) -> bool:
+        """Whether this kernel has the netem qdisc (``sch_netem``; many container kernels lack it)."""
+        ok = self.exec("router", "tc", "qdisc", "replace", "dev", "lo", "root", "netem", "delay", "1ms",
+                       check=False).returncode == 0
+        self.exec("router", "tc", "qdisc", "del", "dev", "lo", "root", check=False)
+        return ok
+
     def netem(self, host: str, spec: str | None) -> None:
         """Apply ``tc netem`` (e.g. ``"loss 5% delay 25ms 25ms"``) to ``host``'s outgoing traffic; None clears it."""
         if spec is None:
