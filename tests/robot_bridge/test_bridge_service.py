@@ -207,3 +207,22 @@ def test_losing_the_zenoh_router_stops_the_robots(tmp_path):
         if router.poll() is None:
             router.kill()
             router.wait()
+
+
+def test_missions_start_together_at_start_ns(lab):
+    s, world = lab["session"], lab["world"]
+    start_ns = time.time_ns() + int(0.6e9)
+    replies = ask(s, "all", "mission", circle(start_ns=start_ns))
+    assert [r.ok for r in replies] == [True, True]
+    moved = {}
+    deadline = time.monotonic() + 2.0
+    while len(moved) < 2 and time.monotonic() < deadline:
+        for i in (0, 1):
+            if i not in moved and world.power(i) != (0, 0):
+                moved[i] = time.time_ns()
+        time.sleep(0.001)
+    assert len(moved) == 2
+    assert all(m >= start_ns for m in moved.values())           # nobody jumped the gun
+    assert abs(moved[0] - moved[1]) < 0.05e9                     # together, within a control period or two
+    assert max(moved.values()) - start_ns < 0.1e9
+    assert lab["bridge"].handles["r1"].mission_log is not None
