@@ -143,18 +143,52 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
     cu = (u - umin) // cell
     cv = (v - vmin) // cell
     cid = cv * gw + cu
-    order = np.argsort(cid, kind="mergesort")
     ncell = gw * gh
     start = np.zeros(ncell + 1, dtype=np.int64)
     for i in range(n):
         start[cid[i] + 1] += 1
     for c in range(ncell):
         start[c + 1] += start[c]
+    # counting sort by cell (stable)
+    order = np.empty(n, dtype=np.int64)
+    fill = start[:-1].copy()
+    for i in range(n):
+        order[fill[cid[i]]] = i
+        fill[cid[i]] += 1
     pu = u[order]
     pv = v[order]
 
-    # 1. neighbour counts (itself included) from row prefix sums of the
-    # occupancy image: the eps-disk is a stack of row runs of half-width w[dy].
+    # 1. pre-screen on the cell grid: a pixel can only be core if the (2 reach + 1)^2
+    # block of cells around its cell holds >= min_samples pixels ("dense" cells), and only
+    # be a border pixel if its cell is within reach of a dense cell; other pixels are
+    # noise whatever the details, and are never looked at again.
+    cnt_pre = np.zeros((gh + 1, gw + 1), dtype=np.int64)
+    for c in range(ncell):
+        cnt_pre[c // gw + 1, c % gw + 1] = start[c + 1] - start[c]
+    for r in range(1, gh + 1):
+        for x in range(1, gw + 1):
+            cnt_pre[r, x] += cnt_pre[r - 1, x] + cnt_pre[r, x - 1] - cnt_pre[r - 1, x - 1]
+    dense_pre = np.zeros((gh + 1, gw + 1), dtype=np.int64)
+    dense = np.zeros(ncell, dtype=np.bool_)
+    for c in range(ncell):
+        if start[c + 1] == start[c]:
+            continue
+        gx = c % gw
+        gy = c // gw
+        x0 = max(gx - reach, 0)
+        x1 = min(gx + reach + 1, gw)
+        y0 = max(gy - reach, 0)
+        y1 = min(gy + reach + 1, gh)
+        tot = cnt_pre[y1, x1] - cnt_pre[y0, x1] - cnt_pre[y1, x0] + cnt_pre[y0, x0]
+        if tot >= min_samples:
+            dense[c] = True
+            dense_pre[gy + 1, gx + 1] = 1
+    for r in range(1, gh + 1):
+        for x in range(1, gw + 1):
+            dense_pre[r, x] += dense_pre[r - 1, x] + dense_pre[r, x - 1] - dense_pre[r - 1, x - 1]
+
+    # neighbour counts (itself included) of the pixels of dense cells, from an occupancy
+    # image (column x stored at x + 1): the eps-disk is a stack of row runs of half-width half[dy]
     rad = 0
     while (rad + 1) * (rad + 1) <= eps2:
         rad += 1
@@ -166,31 +200,36 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
         half[dy + rad] = w
     bw = u.max() - umin + 1
     bh = v.max() - vmin + 1
-    pref = np.zeros((bh, bw + 1), dtype=np.int32)
+    # small disks: sum the bitmap's runs directly; large ones: row prefix sums (2 reads a run)
+    use_prefix = 2 * rad + 1 > 16
+    occ = np.zeros((bh, bw + 1), dtype=np.int16)
     for i in range(n):
-        pref[v[i] - vmin, u[i] - umin + 1] += 1
-    for r in range(bh):
-        for x in range(bw):
-            pref[r, x + 1] += pref[r, x]
-    count = np.zeros(n, dtype=np.int64)
-    for a in range(n):
-        x = pu[a] - umin
-        y = pv[a] - vmin
-        k = 0
-        for dy in range(-rad, rad + 1):
-            r = y + dy
-            if r < 0 or r >= bh:
-                continue
-            w = half[dy + rad]
-            lo = x - w
-            hi = x + w + 1
-            if lo < 0:
-                lo = 0
-            if hi > bw:
-                hi = bw
-            k += pref[r, hi] - pref[r, lo]
-        count[a] = k
-    core = count >= min_samples
+        occ[v[i] - vmin, u[i] - umin + 1] = 1
+    if use_prefix:
+        for r in range(bh):
+            for x in range(bw):
+                occ[r, x + 1] += occ[r, x]
+    core = np.zeros(n, dtype=np.bool_)
+    for c in range(ncell):
+        if not dense[c]:
+            continue
+        for a in range(start[c], start[c + 1]):
+            x = pu[a] - umin
+            y = pv[a] - vmin
+            k = 0
+            for dy in range(-rad, rad + 1):
+                r = y + dy
+                if r < 0 or r >= bh:
+                    continue
+                w = half[dy + rad]
+                lo = max(x - w, 0)
+                hi = min(x + w + 1, bw)
+                if use_prefix:
+                    k += occ[r, hi] - occ[r, lo]
+                else:
+                    for xx in range(lo + 1, hi + 1):
+                        k += occ[r, xx]
+            core[a] = k >= min_samples
 
     # 2. union of cores: all cores of a cell at once, then pairs of cells
     parent = np.arange(n)
@@ -234,6 +273,12 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
     for c in range(ncell):
         gx = c % gw
         gy = c // gw
+        x0 = max(gx - reach, 0)
+        x1 = min(gx + reach + 1, gw)
+        y0 = max(gy - reach, 0)
+        y1 = min(gy + reach + 1, gh)
+        if dense_pre[y1, x1] - dense_pre[y0, x1] - dense_pre[y1, x0] + dense_pre[y0, x0] == 0:
+            continue
         for a in range(start[c], start[c + 1]):
             if core[a]:
                 continue

@@ -271,8 +271,9 @@ def _cluster_moments(labels, pu, pv, cnt, st, st2, k):
 
 @njit(cache=True)
 def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
-    """Per cluster, sum of count * z^order / |z|^(order-2) with z = (u - cx) + i (v - cy),
-    and the sum of count * |z|^2 (the normaliser): the shape's order-fold orientation."""
+    """Per cluster, sum of count * z^order / |z|^(order-2) with z = (u - cx) + i (v - cy)
+    (order 2 or 4), and the sum of count * |z|^2 (the normaliser): the shape's order-fold
+    orientation."""
     re = np.zeros(k)
     im = np.zeros(k)
     nz = np.zeros(k)
@@ -285,10 +286,14 @@ def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
         r2 = dx * dx + dy * dy
         if r2 <= 0.0:
             continue
-        z = complex(dx, dy) ** order / r2 ** ((order - 2) / 2.0)
+        # z^2 / |z|^0 or z^4 / |z|^2
+        zr = dx * dx - dy * dy
+        zi = 2.0 * dx * dy
+        if order == 4:
+            zr, zi = (zr * zr - zi * zi) / r2, 2.0 * zr * zi / r2
         w = float(cnt[j])
-        re[c] += w * z.real
-        im[c] += w * z.imag
+        re[c] += w * zr
+        im[c] += w * zi
         nz[c] += w * r2
     return re, im, nz
 
