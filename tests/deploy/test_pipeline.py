@@ -186,12 +186,19 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
                 if r["robot"] == robot and int(r["t_us"]) >= cut_sim_us - 0.5e6]
         moving_before = [v for t, v in mine if t < cut_sim_us]
         assert moving_before and max(moving_before) > 0.02, f"{robot} was not moving before the cut"
+        cruise = float(np.median(moving_before))
+        braking = [t for t, v in mine if t >= cut_sim_us and v < 0.8 * cruise]
         stopped = [t for t, v in mine if t >= cut_sim_us and v < 0.005]
-        stop_s[robot] = (stopped[0] - cut_sim_us) / 1e6 if stopped else None
+        stop_s[robot] = {"braking": (braking[0] - cut_sim_us) / 1e6 if braking else None,
+                         "still": (stopped[0] - cut_sim_us) / 1e6 if stopped else None}
     report["telemetry_log_at_cut"] = log_report
     report["robot_stop_after_cut_s"] = stop_s
+    (tmp_path / "report.json").write_text(json.dumps(report, indent=1))
     print("pipeline report:", json.dumps(report, indent=1))
     for robot, r in log_report.items():
         assert r["last_sample_before_cut_s"] < 0.2 and r["gap_recorded"], f"{robot}: telemetry log at the cut {r}"
     for robot, s in stop_s.items():
-        assert s is not None and s < 0.3 + 0.1, f"{robot} did not stop within 0.3 s (+0.1 s for clocks): {report}"
+        # the watchdog cuts the motors 0.3 s after the last command (+0.05 s for the clock mapping);
+        # the treads then need ~0.1 s to come to rest
+        assert s["braking"] is not None and s["braking"] < 0.35, f"{robot}: motors not cut within 0.3 s: {report}"
+        assert s["still"] is not None and s["still"] < 0.5, f"{robot}: not at rest within 0.5 s: {report}"
