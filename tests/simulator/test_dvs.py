@@ -170,3 +170,26 @@ def test_bad_parameters_and_calls_raise_clear_errors():
     s.reset(np.array([[0.9, 0.9, 0.0]]))
     with pytest.raises(ValueError, match="steps"):
         s.advance(np.zeros((1, 1, 3)), [5000])
+
+
+def test_roi_simulation_matches_full_frame_simulation():
+    """Simulating only around the robots gives the events of simulating every pixel."""
+    cam = CeilingCamera(160, 120)
+    f = lambda t: (0.5 + 0.3 * t, 0.9 + 0.1 * t, 0.8 * t)          # drive and turn
+    roi, sig_roi, _ = run_path(f, 0.5, cam=cam)
+    full_params = DvsParams(noise_rate_hz=0.0, hot_pixels=0, flicker_hz=1.0, flicker_depth=0.0)
+    full, sig_full, _ = run_path(f, 0.5, cam=cam, params=full_params)
+    assert len(roi) > 500
+    assert len(roi) == pytest.approx(len(full), rel=0.02)
+    key = lambda e: set(zip(e["x"].tolist(), e["y"].tolist(), e["p"].tolist(), (e["t"] // 1000).tolist()))
+    a, b = key(roi), key(full)
+    assert len(a & b) > 0.95 * max(len(a), len(b))
+
+
+def test_flicker_makes_static_scene_fire_everywhere():
+    cam = CeilingCamera(64, 48)
+    params = DvsParams(noise_rate_hz=0.0, hot_pixels=0, flicker_hz=100.0, flicker_depth=0.5)
+    ev, sig, _ = run_path(lambda t: (0.9, 0.9, 0.0), 0.1, cam=cam, params=params)
+    assert sig.all() and len(np.unique(ev["y"].astype(int) * 64 + ev["x"])) > 0.5 * 64 * 48
+    still, _, _ = run_path(lambda t: (0.9, 0.9, 0.0), 0.1, cam=cam)
+    assert len(still) == 0
