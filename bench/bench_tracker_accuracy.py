@@ -15,7 +15,6 @@ detector and Algorithm 1), with the paper's table (DESIGN.md) beside them.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 

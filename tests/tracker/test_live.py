@@ -8,7 +8,6 @@ import subprocess
 import threading
 import time
 
-import numpy as np
 import pytest
 
 from arena.codec import encode
