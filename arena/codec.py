@@ -14,8 +14,9 @@ Layout: ``<4sIqIIIIII`` header (magic ``EVW1``, count, base time µs, raw length
 dt and dy escape streams, compressed lengths of the four streams) then the streams.
 Coordinates must be < 2048 (as in EVT 3.0); times are any int64, in any order.
 
-``planes-zstd-ms/1`` (lossy): times are first floored to 1 ms (relative to ``t_ref_us``),
-then coded as above; x, y and p are exact. ``raw/1``: the :data:`EVENT_DTYPE` bytes.
+``planes-zstd-ms/1`` (lossy, for thin links): times are floored to 1 ms (relative to
+``t_ref_us``) and the events of each millisecond put in (y, p, x) order, then coded as above:
+the same set of (x, y, p) events, each with its millisecond. ``raw/1``: the :data:`EVENT_DTYPE` bytes.
 """
 
 from __future__ import annotations
@@ -204,8 +205,17 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     n = events.size
     base = int(t_ref_us) if t_ref_us is not None else (int(events["t"][0]) if n else 0)
     ts = events["t"]
-    if codec == LOSSY_CODEC:
+    if codec == LOSSY_CODEC and n:
         ts = base + (ts - base) // 1000 * 1000
+        # within one millisecond the order carries no information any more: put the events in
+        # row, polarity, column order, which turns them into cheap runs
+        ms = (ts - ts.min()) // 1000
+        if int(ms.max()) < 1 << 35:  # one packed key: ms | y (16 bits) | p | x (11 bits)
+            order = np.argsort((ms << 28) | (events["y"].astype(np.int64) << 12)
+                               | (events["p"].astype(np.int64) << 11) | events["x"])
+        else:
+            order = np.lexsort((events["x"], events["p"], events["y"], ms))
+        events, ts = events[order], ts[order]
     ctrl = np.empty(n, np.uint8)
     low = np.empty(n, np.uint8)
     dt_esc = np.empty(n * 10, np.uint8)
