@@ -65,6 +65,11 @@ def test_sim_serves_camera_webcam_robots_and_records(tmp_path):
                 if not chunk:
                     break
                 buf += chunk
+        import cv2
+        cap = cv2.VideoCapture(urls["webcam"][0])   # the webcam streams MJPEG
+        ok, frame = cap.read()
+        cap.release()
+        assert ok and frame.ndim == 3
         for u in urls["robot"]:                  # the firmware links accept connections
             rh, rp = u[len("socket://"):].split(":")
             socket.create_connection((rh, int(rp)), timeout=5).close()
@@ -117,3 +122,26 @@ def test_cli_choices_match_the_library():
     from simulator.cli import LIGHTING_CHOICES, PATTERN_CHOICES
     from simulator.world import LIGHTING_LEVELS
     assert PATTERN_CHOICES == PATTERNS and LIGHTING_CHOICES == LIGHTING_LEVELS
+
+
+def test_lab_config_sets_robots_sensor_and_ports(tmp_path):
+    import argparse
+
+    from simulator.cli import _robots_from_args, add_arguments
+    lab = tmp_path / "lab.toml"
+    lab.write_text(
+        '[arena]\nsize_m = [1.83, 1.83]\n'
+        '[[cameras]]\nname = "cam0"\nwidth = 320\nheight = 240\nsource = "tcp://127.0.0.1:9555"\n'
+        'points = [ { pixel = [10.0, 10.0], arena_m = [0.0, 1.83] }, { pixel = [300.0, 10.0], arena_m = [1.83, 1.83] },\n'
+        '  { pixel = [300.0, 230.0], arena_m = [1.83, 0.0] }, { pixel = [10.0, 230.0], arena_m = [0.0, 0.0] } ]\n'
+        '[[robots]]\nname = "zumo1"\ncolor = "yellow"\nmarker_id = 7\nserial_url = "socket://127.0.0.1:9777"\n'
+        '[[robots]]\nname = "zumo2"\ncolor = "black"\nserial_url = "/dev/rfcomm1"\n')
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    specs, opts = _robots_from_args(p.parse_args(["--lab", str(lab)]))
+    assert [s.name for s in specs] == ["zumo1", "zumo2"] and specs[0].marker_id == 7
+    assert specs[0].color_rgb != specs[1].color_rgb
+    assert (opts["width"], opts["height"], opts["camera_port"]) == (320, 240, 9555)
+    assert opts["robot_ports"] == {0: 9777}
+    specs, opts = _robots_from_args(p.parse_args(["--lab", str(lab), "--robots", "3", "--camera-port", "0"]))
+    assert len(specs) == 3 and opts["camera_port"] == 0
