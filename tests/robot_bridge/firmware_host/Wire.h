@@ -1,0 +1,3 @@
+#pragma once
+class TwoWire { public: void begin() {} };
+extern TwoWire Wire;
