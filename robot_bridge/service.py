@@ -461,6 +461,13 @@ class Bridge:
                     self.svc.gauge(f"{name}.missing", st.missing)
                     self.svc.gauge(f"{name}.phase", h.runner.phase if h.runner else ("e-stop" if h.estop else "idle"))
                     self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
+                    res = h.last_result
+                    if res:
+                        self.svc.gauge(f"{name}.last_mission", f"{res['mission_id']}: {res['status']}")
+                        for src in ("odometry", "tracks"):
+                            err = res.get(f"path_error_{src}")
+                            if err:
+                                self.svc.gauge(f"{name}.path_error_{src}_cm", round(err["mean_m"] * 100, 2))
 
     def _on_track(self, sample) -> None:
         now = time.time_ns()
