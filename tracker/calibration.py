@@ -41,6 +41,10 @@ class Calibration:
     pixels: np.ndarray
     arena_m: np.ndarray
 
+    def __post_init__(self) -> None:
+        self._h = tuple(float(c) for c in np.asarray(self.H, dtype=np.float64).ravel())
+        self._Hinv = np.linalg.inv(self.H)
+
     @classmethod
     def from_points(cls, pixels, arena_m, image_size: tuple[int, int]) -> "Calibration":
         """Fit the homography to >= 4 pairs of (u, v) px and (x, y) m (least squares)."""
@@ -97,27 +101,34 @@ class Calibration:
 
     def to_pixel(self, xy) -> np.ndarray:
         """Arena (x, y) m -> sensor (u, v) px; accepts (2,) or (n, 2)."""
-        return _apply(np.linalg.inv(self.H), xy)
+        return _apply(self._Hinv, xy)
 
-    def jacobian(self, u: float, v: float) -> np.ndarray:
-        """d(x, y)/d(u, v) at pixel (u, v): 2x2, m per px."""
-        H = self.H
-        w = H[2, 0] * u + H[2, 1] * v + H[2, 2]
-        x = (H[0, 0] * u + H[0, 1] * v + H[0, 2]) / w
-        y = (H[1, 0] * u + H[1, 1] * v + H[1, 2]) / w
-        return np.array([[(H[0, 0] - x * H[2, 0]) / w, (H[0, 1] - x * H[2, 1]) / w],
-                         [(H[1, 0] - y * H[2, 0]) / w, (H[1, 1] - y * H[2, 1]) / w]])
+    def point_to_arena(self, u: float, v: float) -> tuple[float, float]:
+        """One sensor pixel (u, v) px -> arena (x, y) m, as Python floats (fast path)."""
+        h = self._h
+        w = h[6] * u + h[7] * v + h[8]
+        return (h[0] * u + h[1] * v + h[2]) / w, (h[3] * u + h[4] * v + h[5]) / w
+
+    def jacobian(self, u: float, v: float) -> tuple[tuple[float, float], tuple[float, float]]:
+        """d(x, y)/d(u, v) at pixel (u, v): ((dx/du, dx/dv), (dy/du, dy/dv)), m per px."""
+        h = self._h
+        w = h[6] * u + h[7] * v + h[8]
+        x = (h[0] * u + h[1] * v + h[2]) / w
+        y = (h[3] * u + h[4] * v + h[5]) / w
+        return (((h[0] - x * h[6]) / w, (h[1] - x * h[7]) / w),
+                ((h[3] - y * h[6]) / w, (h[4] - y * h[7]) / w))
 
     def px_per_m(self, u: float | None = None, v: float | None = None) -> float:
         """Image scale at pixel (u, v) (default: the image centre), px per metre."""
         if u is None or v is None:
             u, v = self.image_size[0] / 2.0, self.image_size[1] / 2.0
-        return 1.0 / math.sqrt(abs(np.linalg.det(self.jacobian(u, v))))
+        (a, b), (c, d) = self.jacobian(u, v)
+        return 1.0 / math.sqrt(abs(a * d - b * c))
 
     def vector_to_arena(self, u: float, v: float, du: float, dv: float) -> tuple[float, float]:
         """A sensor-frame vector (px or px/s) at pixel (u, v) -> arena frame (m or m/s)."""
-        J = self.jacobian(u, v)
-        return float(J[0, 0] * du + J[0, 1] * dv), float(J[1, 0] * du + J[1, 1] * dv)
+        (a, b), (c, d) = self.jacobian(u, v)
+        return a * du + b * dv, c * du + d * dv
 
     def heading_to_arena(self, u: float, v: float, heading_px: float) -> float:
         """Heading in the sensor frame (rad from +u towards +v) -> arena yaw (rad, CCW from +x)."""

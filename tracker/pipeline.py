@@ -108,7 +108,7 @@ class Pipeline:
 
     def _observation(self, d: Detection) -> Observation:
         cal = self.calibration
-        x, y = cal.to_arena((d.u, d.v))
+        x, y = cal.point_to_arena(d.u, d.v)
         vx = vy = sig = yaw = math.nan
         if math.isfinite(d.du):
             vx, vy = cal.vector_to_arena(d.u, d.v, d.du, d.dv)
