@@ -224,7 +224,7 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     if ndt < 0:
         raise CodecError(f"{codec} codes x < {_MAX_X}; got x = {ndy}")
     z = _compressor(level)
-    parts = [z.compress(a.data) for a in (ctrl, low, dt_esc[:ndt], dy_esc[:ndy])]
+    parts = [z.compress(a.data) if a.size else b"" for a in (ctrl, low, dt_esc[:ndt], dy_esc[:ndy])]
     head = _HEADER.pack(_MAGIC, n, base, ndt, ndy, *(len(p) for p in parts))
     return b"".join([head, *parts])
 
