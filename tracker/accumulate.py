@@ -22,55 +22,56 @@ _REBASE_S = 20.0
 
 
 @njit(cache=True)
-def _apply(x, y, p, t, sign, t_ref, width, count, on, st, st2, slot, active, n_active):
-    """Add (sign=+1) or remove (sign=-1) events; maintains the list of active pixels."""
+def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_active):
+    """Add (sign=+1) or remove (sign=-1) events. Statistics live in slots 0..n_active-1
+    (contiguous); ``slot[pixel]`` is the pixel's slot or -1, ``active[slot]`` its pixel."""
     for i in range(x.shape[0]):
         k = np.int64(y[i]) * width + np.int64(x[i])
         ti = (t[i] - t_ref) * 1e-6
+        j = slot[k]
         if sign > 0:
-            if count[k] == 0:
-                slot[k] = n_active
-                active[n_active] = k
+            if j < 0:
+                j = n_active
+                slot[k] = j
+                active[j] = k
+                count[j] = 0
+                on[j] = 0
+                st[j] = 0.0
+                st2[j] = 0.0
                 n_active += 1
-            count[k] += 1
+            count[j] += 1
             if p[i]:
-                on[k] += 1
-            st[k] += ti
-            st2[k] += ti * ti
+                on[j] += 1
+            st[j] += ti
+            st2[j] += ti * ti
         else:
-            count[k] -= 1
+            count[j] -= 1
             if p[i]:
-                on[k] -= 1
-            st[k] -= ti
-            st2[k] -= ti * ti
-            if count[k] == 0:
-                st[k] = 0.0
-                st2[k] = 0.0
-                j = slot[k]
-                last = active[n_active - 1]
-                active[j] = last
-                slot[last] = j
+                on[j] -= 1
+            st[j] -= ti
+            st2[j] -= ti * ti
+            if count[j] == 0:
+                last = n_active - 1
+                kl = active[last]
+                active[j] = kl
+                slot[kl] = j
+                count[j] = count[last]
+                on[j] = on[last]
+                st[j] = st[last]
+                st2[j] = st2[last]
+                slot[k] = -1
                 n_active -= 1
     return n_active
 
 
 @njit(cache=True)
-def _gather(active, n_active, width, count, on, st, st2):
+def _coords(active, n_active, width):
     u = np.empty(n_active, dtype=np.int64)
     v = np.empty(n_active, dtype=np.int64)
-    c = np.empty(n_active, dtype=np.int64)
-    o = np.empty(n_active, dtype=np.int64)
-    s1 = np.empty(n_active)
-    s2 = np.empty(n_active)
     for j in range(n_active):
-        k = active[j]
-        u[j] = k % width
-        v[j] = k // width
-        c[j] = count[k]
-        o[j] = on[k]
-        s1[j] = st[k]
-        s2[j] = st2[k]
-    return u, v, c, o, s1, s2
+        u[j] = active[j] % width
+        v[j] = active[j] // width
+    return u, v
 
 
 class PixelWindow:
@@ -87,12 +88,12 @@ class PixelWindow:
         self.width, self.height = int(width), int(height)
         self.accumulation_us = int(accumulation_us)
         n = self.width * self.height
-        self._count = np.zeros(n, dtype=np.int32)
-        self._on = np.zeros(n, dtype=np.int32)
+        self._slot = np.full(n, -1, dtype=np.int64)
+        self._active = np.zeros(n, dtype=np.int64)
+        self._count = np.zeros(n, dtype=np.int64)
+        self._on = np.zeros(n, dtype=np.int64)
         self._st = np.zeros(n, dtype=np.float64)
         self._st2 = np.zeros(n, dtype=np.float64)
-        self._slot = np.zeros(n, dtype=np.int64)
-        self._active = np.zeros(n, dtype=np.int64)
         self._n_active = 0
         self._slices: deque[tuple[int, np.ndarray]] = deque()
         self.t_ref_us: int | None = None
@@ -107,7 +108,7 @@ class PixelWindow:
         if ev.size == 0:
             return
         self._n_active = _apply(ev["x"], ev["y"], ev["p"], ev["t"], sign, self.t_ref_us, self.width,
-                                self._count, self._on, self._st, self._st2, self._slot, self._active,
+                                self._slot, self._active, self._count, self._on, self._st, self._st2,
                                 self._n_active)
         self.n_events += sign * ev.size
 
@@ -151,4 +152,6 @@ class PixelWindow:
 
     def pixels(self):
         """Active pixels: (u, v, count, on_count, sum_t, sum_t2) arrays; times in s from ``t_ref_us``."""
-        return _gather(self._active, self._n_active, self.width, self._count, self._on, self._st, self._st2)
+        m = self._n_active
+        u, v = _coords(self._active, m, self.width)
+        return u, v, self._count[:m].copy(), self._on[:m].copy(), self._st[:m].copy(), self._st2[:m].copy()
