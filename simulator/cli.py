@@ -19,6 +19,10 @@ from contextlib import ExitStack
 from pathlib import Path
 from urllib.parse import urlparse
 
+import numpy as np
+
+from arena.session import add_zenoh_arguments
+
 log = logging.getLogger("simulator")
 
 # The parser must not import numba/OpenCV (slow): `--help` and flag errors stay instant.
@@ -35,6 +39,7 @@ Examples:
   arena sim --robots 8 --camera-port 0 --webcam-port 0 --robot-base-port 0   # free ports
   arena sim --lab deploy/lab.toml              # robots, sensor size and ports from the lab config
   arena sim --robots 3 --autopilot cross --fast --duration 10 --record-raw cross.raw --no-webcam
+  arena sim --robots 4 --autopilot square --publish-truth -e tcp/127.0.0.1:7447   # truth on Zenoh
 Then point the services at the printed addresses, e.g.
   arena edge --source tcp://127.0.0.1:9000     (camera)
   cv2.VideoCapture("http://127.0.0.1:8090/stream.mjpg")   (webcam)
@@ -57,7 +62,6 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The flags of ``arena sim`` (shared with ``python -m simulator``)."""
-    p.add_argument("--lab", metavar="TOML", help="lab config: robots, camera size and ports")
     p.add_argument("--robots", type=int, default=None, metavar="N",
                    help="number of robots (default 4, or the lab config's robots)")
     p.add_argument("--autopilot", choices=("none",) + PATTERN_CHOICES, default="none",
@@ -86,6 +90,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--truth-csv", metavar="FILE", help="write truth poses (t_us,robot,x_m,...) to a CSV")
     p.add_argument("--calibration-out", metavar="FILE",
                    help="write the event camera calibration JSON (pixel <-> arena points)")
+    p.add_argument("--publish-truth", action="store_true",
+                   help="publish exact poses on arena/sim/truth/<robot> over Zenoh at 100 Hz "
+                        "(for scoring only; also status and liveliness as role sim)")
+    # --lab (robots, camera size, ports, Zenoh endpoints) and the Zenoh flags
+    add_zenoh_arguments(p)
 
 
 def _robots_from_args(args) -> tuple[list, dict]:
@@ -190,10 +199,11 @@ def run(args) -> int:
                 if args.record_raw else None
             truth = stack.enter_context(TruthCsvWriter(args.truth_csv, [s.name for s in specs])) \
                 if args.truth_csv else None
+            truth_pub = _start_truth_publisher(stack, args, specs, camera) if args.publish_truth else None
             print(f"running  {len(specs)} robots, autopilot {args.autopilot}, lighting "
                   f"{args.lighting}, {'as fast as possible' if args.fast else 'real time'}"
                   f"{'' if not args.duration else f', {args.duration:g} s'} (Ctrl-C stops)", flush=True)
-            _loop(sim, cam, raw, truth, args, stop)
+            _loop(sim, cam, raw, truth, args, stop, truth_pub)
     except KeyboardInterrupt:
         pass
     finally:
@@ -227,7 +237,46 @@ def _start_robots(stack: ExitStack, world, args, opts) -> None:
         print(f"robot    {spec.name:10s} {emu.url}", flush=True)
 
 
-def _loop(sim, cam, raw, truth, args, stop) -> None:
+class _TruthPublisher:
+    """Publishes the latest exact pose of every robot as a GroundTruthPose (detector "sim",
+    sensor-clock stamp, arena frame) on ``arena/sim/truth/<robot>``, plus status counters."""
+
+    def __init__(self, session, svc, specs, camera):
+        from arena.keys import sim_truth_key
+        self.svc = svc
+        self.camera = camera
+        self.names = [s.name for s in specs]
+        self.pubs = [session.declare_publisher(sim_truth_key(n)) for n in self.names]
+
+    def publish(self, truth, n_events: int) -> None:
+        from arena.messages import GroundTruthPose
+        self.svc.count("events_out", n_events)
+        if len(truth) == 0:
+            return
+        last = truth[-len(self.names):]
+        uv = self.camera.to_pixels(np.column_stack([last["x_m"], last["y_m"]]))
+        for r, (u, v) in zip(last, uv):
+            msg = GroundTruthPose(robot=self.names[r["robot"]], stamp_us=int(r["t_us"]),
+                                  x=float(r["x_m"]), y=float(r["y_m"]), yaw=float(r["yaw_rad"]),
+                                  u_px=float(u), v_px=float(v), detector="sim")
+            self.pubs[r["robot"]].put(msg.encode())
+        self.svc.count("truth_out", len(last))
+
+
+def _start_truth_publisher(stack: ExitStack, args, specs, camera) -> _TruthPublisher:
+    from arena.service import Service
+    from arena.session import SessionError, open_session
+    try:
+        session = stack.enter_context(open_session(args))
+    except SessionError as e:
+        raise SystemExit(f"arena sim: cannot open the Zenoh session for --publish-truth: {e}")
+    svc = stack.enter_context(Service(session, "sim", "sim"))
+    svc.set_state("running")
+    print("truth    arena/sim/truth/<robot> (Zenoh)", flush=True)
+    return _TruthPublisher(session, svc, specs, camera)
+
+
+def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
     """Advance ``sim`` in BLOCK_S blocks, hand events to the camera and recorders, pace to
     the wall clock unless --fast."""
     steps = max(1, int(round(BLOCK_S * 1e6 / sim.step_us)))
@@ -244,6 +293,8 @@ def _loop(sim, cam, raw, truth, args, stop) -> None:
             raw.write(ev, until_us=sim.t_us)
         if truth is not None:
             truth.write(tr)
+        if truth_pub is not None:
+            truth_pub.publish(tr, len(ev))
         n_events += len(ev)
         now = time.monotonic()
         sim_s = done * sim.step_us * 1e-6

@@ -145,3 +145,39 @@ def test_lab_config_sets_robots_sensor_and_ports(tmp_path):
     assert opts["robot_ports"] == {0: 9777}
     specs, opts = _robots_from_args(p.parse_args(["--lab", str(lab), "--robots", "3", "--camera-port", "0"]))
     assert len(specs) == 3 and opts["camera_port"] == 0
+
+
+def test_publish_truth_over_zenoh(router):
+    import threading
+
+    from arena.messages import GroundTruthPose, decode
+    from arena.session import open_session
+    got: list = []
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        with lock:
+            got.append(decode(sample.payload.to_bytes()))
+
+    with open_session(router.settings(mode="client")) as session:
+        sub = session.declare_subscriber("arena/sim/truth/*", on_sample)
+        proc, _ = _start("--robots", "2", "--autopilot", "circle", "--publish-truth", "-m", "client",
+                         *router.args, "--camera-port", "0", "--no-webcam", "--no-robots",
+                         "--duration", "60")
+        try:
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                with lock:
+                    if len({m.robot for m in got}) == 2 and len(got) > 50:
+                        break
+                time.sleep(0.1)
+        finally:
+            _stop(proc)
+            sub.undeclare()
+    with lock:
+        msgs = list(got)
+    assert msgs and all(isinstance(m, GroundTruthPose) and m.detector == "sim" for m in msgs)
+    assert {m.robot for m in msgs} == {"black0", "yellow1"}
+    assert all(0 <= m.x <= 1.83 and 0 <= m.y <= 1.83 and 0 <= m.u_px < 640 for m in msgs)
+    stamps = [m.stamp_us for m in msgs if m.robot == "black0"]
+    assert stamps == sorted(stamps) and stamps[-1] > stamps[0]
