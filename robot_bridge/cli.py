@@ -100,7 +100,7 @@ def register(subparsers) -> None:
         c.set_defaults(func=run_simple, verb=verb)
     c = sub.add_parser("led", help="set a robot's LED colour", formatter_class=_formatter, epilog=EXAMPLES)
     c.add_argument("robot", help="robot name, or 'all'")
-    c.add_argument("rgb", nargs=3, type=int, metavar=("R", "G", "B"), help="0-255 each")
+    c.add_argument("rgb", nargs=3, type=int, metavar="RGB", help="red, green and blue, 0-255 each")
     _client_args(c)
     c.set_defaults(func=run_simple, verb="led")
 

@@ -279,13 +279,17 @@ class RobotLink:
 
     def _run(self) -> None:
         delay = self.backoff_s[0]
+        reported = None
         while not self._stop.is_set():
             if not self._open():
-                log.info("robot %s: %s; retry in %.2f s", self.name, self.last_error, delay)
+                level = logging.INFO if self.last_error == reported else logging.WARNING
+                reported = self.last_error
+                log.log(level, "robot %s: %s; retry in %.2f s", self.name, self.last_error, delay)
                 self._stop.wait(delay)
                 delay = min(delay * 2.0, self.backoff_s[1])
                 continue
             delay = self.backoff_s[0]
+            reported = None
             self.stats.connects += 1
             self.last_error = ""
             self.last_rx_ns = time.time_ns()
