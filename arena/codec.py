@@ -204,23 +204,24 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
         raise CodecError(f"unknown codec {codec!r}; known: {', '.join(CODECS)}")
     n = events.size
     base = int(t_ref_us) if t_ref_us is not None else (int(events["t"][0]) if n else 0)
-    ts = events["t"]
+    xs, ys, ps, ts = events["x"], events["y"], events["p"], events["t"]
     if codec == LOSSY_CODEC and n:
-        ts = base + (ts - base) // 1000 * 1000
-        # within one millisecond the order carries no information any more: put the events in
-        # row, polarity, column order, which turns them into cheap runs
-        ms = (ts - ts.min()) // 1000
-        if int(ms.max()) < 1 << 35:  # one packed key: ms | y (16 bits) | p | x (11 bits)
-            order = np.argsort((ms << 28) | (events["y"].astype(np.int64) << 12)
-                               | (events["p"].astype(np.int64) << 11) | events["x"])
+        # floor to 1 ms; within one millisecond the order carries no information any more, so
+        # sort by (ms, y, p, x), which turns the events into cheap runs
+        t_min = base + (int(ts.min()) - base) // 1000 * 1000
+        ms = (ts - t_min) // 1000
+        if int(ms.max()) < 1 << 35 and int(xs.max()) < _MAX_X:  # one packed key, sorted, unpacked
+            key = np.sort((ms << 28) | (ys.astype(np.int64) << 12) | (ps.astype(np.int64) & 1) << 11 | xs)
+            xs, ps, ys = key & 0x7FF, (key >> 11) & 1, (key >> 12) & 0xFFFF
+            ts = t_min + (key >> 28) * 1000
         else:
-            order = np.lexsort((events["x"], events["p"], events["y"], ms))
-        events, ts = events[order], ts[order]
+            order = np.lexsort((xs, ps, ys, ms))
+            xs, ys, ps, ts = xs[order], ys[order], ps[order], t_min + ms[order] * 1000
     ctrl = np.empty(n, np.uint8)
     low = np.empty(n, np.uint8)
     dt_esc = np.empty(n * 10, np.uint8)
     dy_esc = np.empty(n * 3, np.uint8)
-    ndt, ndy = _encode_planes(events["x"], events["y"], events["p"], ts, base, ctrl, low, dt_esc, dy_esc)
+    ndt, ndy = _encode_planes(xs, ys, ps, ts, base, ctrl, low, dt_esc, dy_esc)
     if ndt < 0:
         raise CodecError(f"{codec} codes x < {_MAX_X}; got x = {ndy}")
     z = _compressor(level)
