@@ -95,6 +95,11 @@ class CeilingCamera:
         H: arena m -> sensor px homography (3 x 3). Built by :func:`default_homography`
            when not given.
         seed: seed of the mat texture.
+        camera_height_m: height of the lens above the mats (camera over the arena centre), m.
+        shell_height_m: height of the shell tops, m. The sensor sees the tops, which appear
+            displaced outwards from the floor homography by the parallax factor
+            ``camera_height_m / (camera_height_m - shell_height_m)`` (~1.8 %, up to ~2 cm at
+            the arena corners), as a real ceiling camera calibrated on the mats does.
     """
 
     width: int = 640
@@ -102,6 +107,8 @@ class CeilingCamera:
     arena_m: float = 1.83
     H: np.ndarray | None = None
     seed: int = 0
+    camera_height_m: float = 2.5
+    shell_height_m: float = 0.045
 
     def __post_init__(self) -> None:
         if self.width < 16 or self.height < 16 or self.width > 4096 or self.height > 4096:
@@ -115,6 +122,14 @@ class CeilingCamera:
         #: arena coordinates (m) of each pixel centre, (height, width) float32
         self.ax = (q[..., 0] / q[..., 2]).astype(np.float32)
         self.ay = (q[..., 1] / q[..., 2]).astype(np.float32)
+        if not 0 <= self.shell_height_m < self.camera_height_m:
+            raise ValueError("shell_height_m must be >= 0 and below camera_height_m")
+        #: floor distance from the nadir shrinks by this factor at shell-top height
+        self.top_scale = (self.camera_height_m - self.shell_height_m) / self.camera_height_m
+        self.nadir = np.array([self.arena_m / 2, self.arena_m / 2])
+        #: arena coordinates (m) where each pixel's ray meets the shell-top plane
+        self.ax_top = (self.nadir[0] + (self.ax - self.nadir[0]) * self.top_scale).astype(np.float32)
+        self.ay_top = (self.nadir[1] + (self.ay - self.nadir[1]) * self.top_scale).astype(np.float32)
         c = apply_homography(self.H, [[self.arena_m / 2, self.arena_m / 2]])[0]
         d = apply_homography(self.H, [[self.arena_m / 2 + 0.01, self.arena_m / 2]])[0]
         #: mean pixel pitch on the arena, m/px
@@ -122,8 +137,13 @@ class CeilingCamera:
         self.background = self._render_background()
 
     def to_pixels(self, xy_m: np.ndarray) -> np.ndarray:
-        """Arena points (n, 2) in m -> sensor pixels (n, 2) (u, v)."""
+        """Arena points (n, 2) in m on the mats -> sensor pixels (n, 2) (u, v)."""
         return apply_homography(self.H, xy_m)
+
+    def top_to_pixels(self, xy_m: np.ndarray) -> np.ndarray:
+        """Points (n, 2) in m at shell-top height (e.g. robot centres) -> sensor pixels (n, 2)."""
+        xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        return apply_homography(self.H, self.nadir + (xy - self.nadir) / self.top_scale)
 
     def to_arena(self, uv_px: np.ndarray) -> np.ndarray:
         """Sensor pixels (n, 2) (u, v) -> arena points (n, 2) in m."""

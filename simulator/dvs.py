@@ -21,6 +21,7 @@ interest (the dilated union of each robot's footprint over the last few photorec
 constants); the memory of every other pixel stays as it is. With ``flicker_hz > 0`` the
 whole sensor changes and the whole frame is simulated (slow; not real time).
 
+Robots are seen at their shell-top height (parallax, see :class:`simulator.camera.CeilingCamera`).
 Sensor frame: x = column u, y = row v, px; timestamps in µs of the sensor clock.
 """
 
@@ -171,7 +172,7 @@ def _merge_boxes(boxes, owner):
 
 @njit(cache=True)
 def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
-               hom, ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
+               hom, nadir_x, nadir_y, top_scale, ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
                min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,
                init, ox, oy, op, ot, last_refl, last_target, last_alpha, bg_alpha, std_dt_us,
                settled, prev_pose):
@@ -220,6 +221,8 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                     by = cy_ * app[r, 1]
                     xa = state[r, 0] + state[r, 2] * bx - state[r, 3] * by
                     ya = state[r, 1] + state[r, 3] * bx + state[r, 2] * by
+                    xa = nadir_x + (xa - nadir_x) / top_scale     # seen at shell-top height
+                    ya = nadir_y + (ya - nadir_y) / top_scale
                     w_ = hom[2, 0] * xa + hom[2, 1] * ya + hom[2, 2]
                     pu = (hom[0, 0] * xa + hom[0, 1] * ya + hom[0, 2]) / w_
                     pv = (hom[1, 0] * xa + hom[1, 1] * ya + hom[1, 2]) / w_
@@ -534,7 +537,7 @@ class DvsSensor:
         k = poses_seq.shape[0]
         if self._n == 0:
             return np.zeros((k, 0, 4), dtype=np.int64)
-        uv = self.camera.to_pixels(poses_seq[:, :, :2].reshape(-1, 2)).reshape(k, self._n, 2)
+        uv = self.camera.top_to_pixels(poses_seq[:, :, :2].reshape(-1, 2)).reshape(k, self._n, 2)
         r = self._radius_px[None, :]
         return np.stack([np.floor(uv[..., 0] - r), np.floor(uv[..., 1] - r),
                          np.ceil(uv[..., 0] + r) + 1, np.ceil(uv[..., 1] + r) + 1],
@@ -552,7 +555,9 @@ class DvsSensor:
             ox, oy, op, ot = self._buf
             done, n, self._hist_i = _dvs_block(
                 poses_seq, t_seq, t0, cur, self._hist, self._hist_i, full, self.width,
-                self.height, self.camera.H, self.camera.ax, self.camera.ay, self.camera.background,
+                self.height, self.camera.H, float(self.camera.nadir[0]), float(self.camera.nadir[1]),
+                float(self.camera.top_scale), self.camera.ax_top, self.camera.ay_top,
+                self.camera.background,
                 self._bg_log, self._app, self._markers, self.camera.pixel_m, illum,
                 p.dark_current, p.cutoff_hz, p.min_cutoff_hz, self._lmem, self._llp,
                 self._thr_on, self._thr_off, self._t_last, int(p.refractory_us), int(max_count),

@@ -47,8 +47,8 @@ def test_dark_shell_off_on_leading_edge_on_on_trailing_edge():
     assert len(ev) > 1000
     # position of each event along the motion direction, relative to the robot centre
     t = ev["t"] * 1e-6
-    centre = CAM.to_pixels(np.column_stack([0.6 + 0.3 * t, np.full(len(t), 0.9)]))
-    ahead = CAM.to_pixels(np.column_stack([0.6 + 0.3 * t + 0.01, np.full(len(t), 0.9)]))
+    centre = CAM.top_to_pixels(np.column_stack([0.6 + 0.3 * t, np.full(len(t), 0.9)]))
+    ahead = CAM.top_to_pixels(np.column_stack([0.6 + 0.3 * t + 0.01, np.full(len(t), 0.9)]))
     d = (ahead - centre) / np.linalg.norm(ahead - centre, axis=1, keepdims=True)
     s = ((np.column_stack([ev["x"], ev["y"]]) - centre) * d).sum(axis=1)
     lead, trail = ev[s > 5], ev[s < -5]
@@ -193,3 +193,18 @@ def test_flicker_makes_static_scene_fire_everywhere():
     assert sig.all() and len(np.unique(ev["y"].astype(int) * 64 + ev["x"])) > 0.5 * 64 * 48
     still, _, _ = run_path(lambda t: (0.9, 0.9, 0.0), 0.1, cam=cam)
     assert len(still) == 0
+
+
+def test_shell_tops_appear_displaced_outwards_by_parallax():
+    """A robot near an arena corner is seen further out than its floor position."""
+    x, y = 0.25, 0.25
+    ev, sig, _ = run_path(lambda t: (x + 0.2 * t, y, 0.0), 0.3)
+    ev = ev[sig & (ev["t"] > 100_000)]
+    t = ev["t"] * 1e-6
+    floor = CAM.to_pixels(np.column_stack([x + 0.2 * t, np.full(len(t), y)]))
+    top = CAM.top_to_pixels(np.column_stack([x + 0.2 * t, np.full(len(t), y)]))
+    centre = CAM.to_pixels([[0.915, 0.915]])[0]
+    mean_uv = np.column_stack([ev["x"], ev["y"]]).mean(axis=0)
+    assert np.linalg.norm(top.mean(0) - centre) > np.linalg.norm(floor.mean(0) - centre)
+    # events are centred on the top projection, not on the floor projection
+    assert np.linalg.norm(mean_uv - top.mean(0)) < np.linalg.norm(mean_uv - floor.mean(0))
