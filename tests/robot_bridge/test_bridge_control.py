@@ -117,3 +117,13 @@ def test_estimator_trusts_tracks_across_but_not_along_the_motion_and_drops_outli
     n = est.tracks_rejected
     assert not est.add_track(1.0, 0.6, 0.02, None)   # 40 cm away: an outlier
     assert est.tracks_rejected == n + 1
+
+
+@pytest.mark.slow
+def test_closed_loop_on_the_real_tracker_fed_by_the_simulated_event_camera():
+    bench = load_bench()
+    params = {"radius_m": 0.15}
+    paper = bench.simulate("circle", params, 1.0, "paper", seed=4)[0]
+    closed, _, _, _ = bench.simulate("circle", params, 1.0, "closed", seed=4, tracker=True)
+    assert closed.mean_m < 0.015 and closed.coverage_m < 0.02
+    assert closed.mean_m * 5 <= paper.mean_m
