@@ -96,3 +96,64 @@ def test_live_tracker_publishes_tracks_answers_get_and_survives_bad_windows(rout
     assert last.counters.get("windows_bad", 0) >= 2 and last.counters.get("windows_late", 0) >= 1
     assert last.counters.get("windows_in", 0) >= 190
     assert log_csv.read_text().startswith("t_us,track_id,robot,x_m,y_m,yaw_rad")
+
+
+@pytest.mark.slow
+def test_simulator_camera_edge_and_tracker_end_to_end(router, tmp_path):
+    """The simulator's TCP camera -> `arena edge` -> `arena track` -> a subscriber, all real."""
+    import numpy as np
+
+    from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+    from simulator.evt3 import CameraServer, canonical_order
+    from simulator.scenarios import Scenario, generate
+
+    rec = generate(Scenario(n_robots=2, pattern="circle", power=1.0, duration_s=3.0, seed=9))
+    (tmp_path / "calib.json").write_text(json.dumps(rec.calibration))
+    events = canonical_order(rec.events)
+    got: list[Track] = []
+    lock = threading.Lock()
+
+    def on_track(sample):
+        with lock:
+            got.append(decode(bytes(sample.payload)))
+
+    procs = []
+    with CameraServer(drop_when_slow=False) as cam, open_session(router.settings("client")) as s:
+        s.declare_subscriber("arena/robots/*", on_track)
+        try:
+            procs.append(subprocess.Popen(arena_cmd("track", "--camera", "sim0", "--calibration",
+                                                    str(tmp_path / "calib.json"), "-m", "client", *router.args),
+                                          env=ENV, text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
+            _wait_alive(s, "arena/alive/tracker/tracker-sim0")
+            procs.append(subprocess.Popen(arena_cmd("edge", f"{cam.url}?width={rec.width}&height={rec.height}",
+                                                    "--camera", "sim0", *router.args),
+                                          env=ENV, text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
+            _wait_alive(s, "arena/alive/edge/sim0")
+            deadline = time.monotonic() + 20
+            while cam.n_clients < 1 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.5)
+            t = events["t"]
+            for a in range(0, int(t[-1]) + 30_000, 10_000):   # real time pace
+                cam.publish(events[(t >= a) & (t < a + 10_000)], until_us=a + 10_000)
+                time.sleep(0.01)
+            time.sleep(2.0)
+            assert all(p.poll() is None for p in procs), "a service died"
+        finally:
+            for p in procs:
+                p.terminate()
+            for p in procs:
+                p.communicate(timeout=20)
+    with lock:
+        msgs = list(got)
+    assert len(msgs) > 100
+    tracks = np.array([(m.stamp_us, str(m.track_id), "", m.x, m.y, m.yaw if m.yaw is not None else np.nan,
+                        m.vx, m.vy, m.u_px, m.v_px, m.state, m.n_events) for m in msgs], dtype=TRACK_DTYPE)
+    truth = np.empty(rec.truth.size, TRUTH_DTYPE)
+    for k in ("t_us", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps"):
+        truth[k] = rec.truth[k]
+    truth["robot"] = np.asarray(rec.robot_names)[rec.truth["robot"]]
+    scores = evaluate(tracks, truth, gate_m=0.10)
+    # real time on a shared machine may drop a few slices: identities and accuracy must hold
+    assert scores.id_switches == 0 and scores.precision > 0.99 and scores.mae_cm < 2.0
+    assert scores.recall > 0.8
