@@ -10,7 +10,8 @@
   answers with the current fleet; tracks can also be logged to CSV.
 - Presence and once-a-second status through :class:`arena.service.Service`: counters
   ``windows_in``, ``windows_bad``, ``windows_late``, ``windows_missed`` (sequence gaps),
-  ``tracks_out``; gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
+  ``tracks_out``, ``stream_restarts`` (the camera's clock jumped back by > 1 s: a replay
+  looping; tracking starts afresh); gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
   track publish, host clocks).
 """
 
@@ -44,8 +45,13 @@ class LiveTracker:
     messages to publish; the Zenoh wiring is in :func:`run_live`.
     """
 
-    def __init__(self, pipeline: Pipeline, camera: str, svc=None) -> None:
+    #: a window this much older than the last one is a restarted stream (e.g. a replay
+    #: looping), not a late slice: the pipeline starts afresh
+    RESTART_US = 1_000_000
+
+    def __init__(self, pipeline: Pipeline, camera: str, svc=None, make_pipeline=None) -> None:
         self.pipeline = pipeline
+        self.make_pipeline = make_pipeline
         self.camera = camera
         self.svc = svc
         self.last_seq: int | None = None
@@ -79,6 +85,13 @@ class LiveTracker:
             self._bad("windows_bad", f"corrupt event window skipped: {exc}")
             return []
         last = self.pipeline.last_t_us
+        if last is not None and win.t_end_us < last - self.RESTART_US and self.make_pipeline is not None:
+            self._count("stream_restarts")
+            log.warning("camera %s restarted its clock (%d µs after %d µs): tracking afresh",
+                        self.camera, win.t_end_us, last)
+            self.pipeline = self.make_pipeline()
+            self.last_seq = None
+            last = None
         if last is not None and win.t_end_us <= last:
             self._bad("windows_late", f"out-of-order window seq {win.seq} (ends {win.t_end_us} µs, "
                                       f"last {last} µs) skipped")
@@ -141,9 +154,12 @@ def run_live(args) -> int:
     else:
         raise SystemExit("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
     fleet_size = args.fleet_size if args.fleet_size is not None else ((len(lab.robots) or None) if lab is not None else None)
-    pipe = Pipeline(cal, tracker=args.tracker, detector=args.detector,
-                    accumulation_us=int(round(args.accumulation_ms * 1000)),
-                    chassis_m=args.chassis_cm / 100.0, fleet_size=fleet_size, backend=args.backend)
+    def make_pipeline() -> Pipeline:
+        return Pipeline(cal, tracker=args.tracker, detector=args.detector,
+                        accumulation_us=int(round(args.accumulation_ms * 1000)),
+                        chassis_m=args.chassis_cm / 100.0, fleet_size=fleet_size, backend=args.backend)
+
+    pipe = make_pipeline()
     name = args.name or f"tracker-{args.camera}"
     stop = stop_on_signals()
     csv_file = open(args.tracks_out, "w", newline="") if args.tracks_out else None
@@ -151,7 +167,7 @@ def run_live(args) -> int:
     deadline = None if args.duration is None else time.monotonic() + args.duration
     try:
         with open_session(args, lab=lab, wait_s=None) as session, Service(session, "tracker", name) as svc:
-            live = LiveTracker(pipe, args.camera, svc)
+            live = LiveTracker(pipe, args.camera, svc, make_pipeline)
             publishers: dict[str, zenoh.Publisher] = {}
 
             def on_query(query: zenoh.Query) -> None:

@@ -1,0 +1,55 @@
+"""LiveTracker without Zenoh: bad, late and restarted windows; Track messages."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from arena.codec import encode
+from arena.messages import EventWindow
+from tests.tracker.synth import calibration_dict, line_pose, window
+from tracker.calibration import Calibration
+from tracker.pipeline import Pipeline
+from tracker.service import LiveTracker
+
+
+def make():
+    return Pipeline(Calibration.from_dict(calibration_dict()))
+
+
+def win(ev, k, seq=None, t0=0):
+    a, b = t0 + k * 10_000, t0 + (k + 1) * 10_000
+    sl = ev[(ev["t"] >= a) & (ev["t"] < b)]
+    return EventWindow(camera="c0", seq=k if seq is None else seq, t_start_us=a, t_end_us=b, width=640, height=480,
+                       count=sl.size, codec="planes-zstd/1", data=encode(sl), publish_ns=1)
+
+
+def test_bad_late_and_restarted_windows_are_skipped_and_tracking_goes_on():
+    rng = np.random.default_rng(4)
+    t0 = 2_000_000
+    ev = window(rng, [line_pose(200, 200, 100.0, 0.0, t_start=t0)], t0, t0 + 600_000)
+    live = LiveTracker(make(), "c0", make_pipeline=make)
+    out = []
+    for k in range(30):
+        out += live.handle(win(ev, k, t0=t0).encode(), now_ns=5)
+        if k == 10:
+            assert live.handle(b"garbage", 5) == []
+            w = win(ev, k, t0=t0)
+            w.data = w.data[:-3]
+            assert live.handle(w.encode(), 5) == []                     # corrupt payload
+            assert live.handle(win(ev, k - 3, t0=t0).encode(), 5) == []  # late
+            wrong = win(ev, k + 1, t0=t0)
+            wrong.width = 320
+            assert live.handle(wrong.encode(), 5) == []                 # not the calibrated sensor
+    keys = {k for k, _, _ in out}
+    assert keys == {"arena/robots/1"}
+    m = out[-1][1]
+    assert m.camera == "c0" and m.stamp_us == t0 + 300_000 and m.window_end_us == t0 + 300_000
+    assert m.state == "confirmed"
+    assert m.x == np.float64(m.x) and 0.6 < m.x < 1.0 and m.tracker_publish_ns == 5
+    with live.lock:
+        assert set(live.fleet) == {"arena/robots/1"}
+    # the camera restarts its clock (a looping replay): tracking starts afresh, no skipping
+    ev2 = window(rng, [line_pose(200, 200, 100.0, 0.0)], 0, 100_000)
+    for k in range(10):
+        live.handle(win(ev2, k, seq=100 + k).encode(), now_ns=6)
+    assert live.pipeline.last_t_us == 100_000
