@@ -74,7 +74,7 @@ def register_track(sub) -> None:
                    help="accumulation time t_a, ms (default 100, the paper's best)")
     p.add_argument("--chassis-cm", type=float, default=10.0, help="robot footprint side, cm (default 10)")
     p.add_argument("--fleet-size", type=int, default=None,
-                   help="number of robots (caps confirmed tracks; live default: the lab config's robots)")
+                   help="number of robots (caps confirmed tracks; default: the lab config's robots)")
     p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
     p.add_argument("--queue", type=int, default=8, help="live: newest slices kept when lagging (default 8)")
     p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
@@ -113,6 +113,14 @@ def run_offline(args) -> int:
     if not (args.chassis_cm > 0 and math.isfinite(args.chassis_cm)):
         raise SystemExit(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
     cal = _load_calibration(args.calibration)
+    fleet_size = args.fleet_size
+    if fleet_size is None and Path(args.calibration).suffix.lower() == ".toml":
+        from arena.config import ConfigError, load_lab_config
+
+        try:  # a lab config also tells how many robots there are
+            fleet_size = len(load_lab_config(args.calibration).robots) or None
+        except ConfigError as exc:
+            raise SystemExit(f"arena track: {exc}") from None
     w, h = cal.image_size
     opts = {"width": w, "height": h} if Path(args.input).suffix.lower() in (".csv", ".npy", ".npz") else {}
     try:
@@ -123,7 +131,7 @@ def run_offline(args) -> int:
         raise SystemExit(f"arena track: {exc}") from None
     pipe = Pipeline(cal, tracker=args.tracker, detector=args.detector,
                     accumulation_us=int(round(args.accumulation_ms * 1000)),
-                    chassis_m=args.chassis_cm / 100.0, fleet_size=args.fleet_size, backend=args.backend)
+                    chassis_m=args.chassis_cm / 100.0, fleet_size=fleet_size, backend=args.backend)
     slice_us = int(round(args.slice_ms * 1000))
     n_rows = n_slices = 0
     t0 = time.perf_counter()
