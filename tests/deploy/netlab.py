@@ -185,6 +185,40 @@ class NetLab:
         else:
             self.exec(host, "tc", "qdisc", "replace", "dev", "eth0", "root", "netem", *spec.split())
 
+    def impair(self, host: str, loss: float, delay_ms: float, jitter_ms: float, duration: float = 60.0,
+               port: int | None = None, log: Path | None = None) -> subprocess.Popen:
+        """Loss and delay jitter on ``host``'s link without netem: its veth is moved off the bridge
+        and a userspace forwarder (``impair.py``) relays frames between it and a new veth pair on
+        the bridge (only TCP ``port`` is impaired when given). :meth:`unimpair` puts the link back. Loss applies per frame as relayed (a
+        segmentation-offloaded TCP burst is one frame), so the loss is coarser than netem's."""
+        a, b = f"{self.tag}i{HOSTS[host]}a", f"{self.tag}i{HOSTS[host]}b"
+        _ip("ip", "link", "add", a, "type", "veth", "peer", "name", b)
+        self.created_links.append(a)
+        for link in (a, b):
+            _ip("ip", "link", "set", link, "up")
+        _ip("ip", "link", "set", self.veth(host), "nomaster")
+        _ip("ip", "link", "set", b, "master", self.bridge)
+        out = open(log, "w") if log is not None else subprocess.DEVNULL  # noqa: SIM115
+        proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("impair.py")), self.veth(host), a,
+                                 "--loss", str(loss), "--delay-ms", str(delay_ms), "--jitter-ms", str(jitter_ms),
+                                 "--duration", str(duration), *(["--port", str(port)] if port else [])], stdout=out, stderr=subprocess.STDOUT, text=True,
+                                start_new_session=True)
+        if log is not None:
+            out.close()
+        self.procs.append(proc)
+        self._impaired = getattr(self, "_impaired", {})
+        self._impaired[host] = (proc, a)
+        return proc
+
+    def unimpair(self, host: str) -> dict | None:
+        """Undo :meth:`impair`: stop the forwarder (SIGTERM lets it print its counts) and re-attach the link."""
+        proc, a = self._impaired.pop(host)
+        self.kill(proc, signal.SIGTERM)
+        _ip("ip", "link", "del", a, check=False)
+        self.created_links.remove(a)
+        _ip("ip", "link", "set", self.veth(host), "master", self.bridge)
+        return None
+
     def close(self) -> None:
         """Kill every spawned process, then delete links and namespaces (never raises)."""
         for proc in self.procs:
