@@ -160,6 +160,8 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
     assert report["tracks_per_s_clean"] > 10, f"too few tracks in the clean phase: {report}\n{_logs(logs)}"
     telemetry = samples_between(events, t_clean, t_netem, "arena/telemetry/")
     assert telemetry, "no telemetry from the bridge reached the viewer"
+    alive = {r["role"] for r in json.loads(status.stdout) if r["alive"]}
+    assert {"router", "edge", "tracker", "bridge"} <= alive, f"arena status: {status.stdout[-2000:]}"
 
     # 5 % loss and 50 ms jitter on the camera host: tracks keep flowing, the robots keep their track keys
     lossy = samples_between(events, t_netem + 0.5, t_netem_end, "arena/robots/")
