@@ -94,7 +94,7 @@ class DvsParams:
                 raise ValueError(f"DvsParams: {msg}")
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _reflectance(u, v, ax, ay, bg, state, app, markers, members, n_members, pix_m):
     """Reflectance seen by pixel (u, v): background with the robots of ``members`` on top."""
     x = ax[v, u]
@@ -170,7 +170,7 @@ def _merge_boxes(boxes, owner):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
                hom, nadir_x, nadir_y, top_scale, ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
                min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,

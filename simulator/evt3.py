@@ -159,6 +159,8 @@ class Evt3Encoder:
         t = ev["t"].astype(np.int64)
         if len(t) and (t[0] < 0 or t[0] < self._last_t):
             raise ValueError("EVT3 encoder: timestamps must be >= 0 and non-decreasing across calls")
+        if len(t) and (ev["x"].max() > 0x7FF or ev["y"].max() > 0x7FF):
+            raise ValueError("EVT3 encoder: x and y must be < 2048 (11-bit addresses)")
         start = self._state[0] if self._state[0] >= 0 else ((int(t[0]) >> 12) if len(t) else 0)
         end = max(int(t[-1]) if len(t) else 0, int(until_us or 0)) >> 12
         out = np.empty(4 * len(ev) + 8 + max(0, end - int(start)), dtype=np.uint16)

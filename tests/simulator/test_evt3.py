@@ -131,3 +131,24 @@ def test_camera_server_keeps_time_alive_without_events():
         cam.publish(make_events([], [], [], []), until_us=100_000)
         data = _read_available(s, 0.5)
     assert word_types(data)[EVT_TIME_HIGH] >= 100_000 // 4096
+
+
+def test_encoder_rejects_addresses_beyond_11_bits():
+    with pytest.raises(ValueError, match="2048"):
+        encode_evt3(make_events([2048], [0], [1], [10]))
+
+
+def test_camera_server_survives_a_client_that_goes_away():
+    with CameraServer(port=0) as cam:
+        s = socket.create_connection((cam.host, cam.port))
+        deadline = time.monotonic() + 5
+        while cam.n_clients == 0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        s.close()
+        ev = random_events(seed=3, n=5000, t_max=500_000)
+        deadline = time.monotonic() + 5
+        while cam.n_clients and time.monotonic() < deadline:
+            cam.publish(ev[:100], until_us=int(ev["t"][99]))     # must not raise
+            ev = ev[100:]
+            time.sleep(0.05)
+        assert cam.n_clients == 0
