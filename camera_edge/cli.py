@@ -134,6 +134,10 @@ def _apply_lab_options(args, options: dict) -> str | None:
                 else:
                     return f"[services.edge] {key} must be a {type(default).__name__}, got {value!r}"
             setattr(args, key, value)
+    if isinstance(args.denoise, bool):  # `denoise = true` in the lab config: the default window
+        args.denoise = 10_000 if args.denoise else None
+    if args.denoise is not None and (not isinstance(args.denoise, int) or args.denoise <= 0):
+        return f"denoise must be a time window in µs > 0 (or true), got {args.denoise!r}"
     if args.codec not in CODECS:
         return f"[services.edge] codec must be one of {', '.join(CODECS)}, got {args.codec!r}"
     return None

@@ -96,6 +96,10 @@ def test_lab_options_fill_unset_flags_and_are_checked():
     assert "unknown [services.edge] option" in _apply_lab_options(args, {"slice": 3})
     args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
     assert "must be a int" in _apply_lab_options(args, {"queue": "big"})
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    assert _apply_lab_options(args, {"denoise": True}) is None and args.denoise == 10_000
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    assert "denoise must be" in _apply_lab_options(args, {"denoise": "x"})
 
 
 def test_edge_reads_its_camera_from_the_lab_config(tmp_path):
