@@ -128,3 +128,17 @@ def save_recording(rec, path: str | Path) -> Path:
                         calibration=json.dumps(rec.calibration), width=rec.width,
                         height=rec.height, homography=rec.homography)
     return path
+
+
+def load_recording(path: str | Path):
+    """Read a ``.npz`` written by :func:`save_recording` back into a
+    :class:`simulator.scenarios.Recording` (without robot specs and scenario)."""
+    from simulator.scenarios import Recording
+    try:
+        z = np.load(path, allow_pickle=False)
+        return Recording(events=z["events"], is_signal=z["is_signal"], truth=z["truth"],
+                         robot_names=[str(n) for n in z["robot_names"]],
+                         calibration=json.loads(str(z["calibration"])), width=int(z["width"]),
+                         height=int(z["height"]), homography=z["homography"])
+    except (KeyError, ValueError, OSError) as e:
+        raise ValueError(f"{path}: not a simulator recording (.npz from save_recording): {e}") from None

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from simulator.camera import apply_homography
-from simulator.recording import save_recording, write_events, write_truth_csv
+from simulator.recording import load_recording, save_recording, write_events, write_truth_csv
 from simulator.scenarios import Scenario, generate
 
 SMALL = dict(width=320, height=240)
@@ -124,6 +124,11 @@ def test_writers_csv_npz_and_truth(tmp_path):
     z = np.load(tmp_path / "r.npz")
     assert np.array_equal(z["events"], rec.events) and np.array_equal(z["truth"], rec.truth)
     assert json.loads(str(z["calibration"])) == rec.calibration
+    back = load_recording(tmp_path / "r.npz")
+    assert np.array_equal(back.events, rec.events) and back.robot_names == rec.robot_names
+    assert back.first_motion_us() == rec.first_motion_us() and back.calibration == rec.calibration
+    with pytest.raises(ValueError, match="not a simulator recording"):
+        load_recording(tmp_path / "e.csv")
     write_truth_csv(tmp_path / "t.csv", rec.truth, rec.robot_names)
     with open(tmp_path / "t.csv") as f:
         r = list(csv.DictReader(f))
@@ -140,3 +145,10 @@ def test_bad_scenarios_raise_clear_errors():
         generate(Scenario(power=2.0))
     with pytest.raises(ValueError, match="lighting"):
         generate(Scenario(lighting="disco"))
+
+
+def test_dark_lighting_more_noise_fewer_robot_events():
+    full = generate(Scenario(n_robots=1, duration_s=1.5, lighting="full", markers=False, **SMALL))
+    dark = generate(Scenario(n_robots=1, duration_s=1.5, lighting="dark", markers=False, **SMALL))
+    assert (~dark.is_signal).sum() > 3 * (~full.is_signal).sum()
+    assert 0 < dark.is_signal.sum() < full.is_signal.sum()
