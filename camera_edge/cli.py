@@ -151,7 +151,10 @@ def _build_filters(args, width: int, height: int, lab_camera) -> list:
         if args.hot_pixels == "learn":
             filters.append(HotPixelFilter(width, height, learn_us=int(args.hot_learn_s * 1e6)))
         else:
-            filters.append(HotPixelFilter(width, height, path=args.hot_pixels))
+            try:
+                filters.append(HotPixelFilter(width, height, path=args.hot_pixels))
+            except ValueError as exc:
+                raise SystemExit(f"arena edge: {exc}") from None
     if args.roi:
         if args.roi == "lab":
             if lab_camera is None or not lab_camera.calibration:
