@@ -60,13 +60,18 @@ class Odometry:
         x, y, yaw = odo.update(300, 300)
     """
 
+    #: the gyro bias is learned after the treads stood still this long, s ...
+    BIAS_STILL_S = 0.3
+    #: ... and only from rates below this (a real bias is small), rad/s
+    BIAS_MAX_RADPS = 0.1
+
     def __init__(self, geometry: WheelGeometry, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         self.geometry = geometry
         self.x, self.y, self.yaw = (float(v) for v in pose)
         self.distance_m = 0.0   # total path length driven (mean of both treads), m
         self.gyro_bias = 0.0    # learned yaw-rate bias, rad/s
         self._last: tuple[int, int] | None = None
-        self._last_still: tuple[int, int] = (0, 0)
+        self._still_since: float | None = None
         self._last_gyro: tuple[float | None, float | None] = (None, None)
 
     @property
@@ -101,11 +106,15 @@ class Odometry:
         dth = (dr - dl) / self.geometry.track_width_m
         g0, t0 = self._last_gyro
         self._last_gyro = (gyro_z, t)
+        if dl != 0.0 or dr != 0.0 or t is None:
+            self._still_since = t
+        elif self._still_since is None:
+            self._still_since = t
         if gyro_z is not None and t is not None and g0 is not None and t0 is not None and 0 < t - t0 < 0.5:
-            if enc_left == self._last_still[0] and enc_right == self._last_still[1]:
-                self.gyro_bias += 0.05 * (gyro_z - self.gyro_bias)   # standing still: learn the bias
+            # standing still for a while (not a stalled count) with a small rate: learn the bias
+            if t - self._still_since >= self.BIAS_STILL_S and abs(gyro_z) < self.BIAS_MAX_RADPS:
+                self.gyro_bias += 0.05 * (gyro_z - self.gyro_bias)
             dth = (0.5 * (g0 + gyro_z) - self.gyro_bias) * (t - t0)
-        self._last_still = (enc_left, enc_right)
         mid = self.yaw + 0.5 * dth
         self.x += ds * math.cos(mid)
         self.y += ds * math.sin(mid)

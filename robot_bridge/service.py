@@ -32,7 +32,7 @@ from arena.keys import ALL_ROBOTS, COMMAND_VERBS, telemetry_key, validate_name
 from arena.messages import Command, CommandReply, MessageError, MissionCommand, Telemetry, Track, decode
 
 from . import protocol as P
-from .control import MissionRunner, PoseEstimator, path_error
+from .control import MissionRunner, PoseEstimator, compose, inverse, path_error
 from .link import LinkDown, RobotLink
 from .logs import MissionLog, Sample
 from .missions import MissionError, build_mission, mission_speed
@@ -113,6 +113,7 @@ class RobotHandle:
         self._speeds = (0.0, 0.0)
         self._trace_odo: list[tuple[float, float]] = []
         self._trace_track: list[tuple[float, float]] = []
+        self._odo_to_mission = (0.0, 0.0, 0.0)
         self.samples = 0
         self.published = 0
         self.battery_mv = 0
@@ -164,6 +165,8 @@ class RobotHandle:
             self.mission_id = mission_id
             self.start_at_ns = cmd.start_ns
             self._trace_odo, self._trace_track = [], []
+            # dead reckoning from the start pose, in the mission's (arena) frame
+            self._odo_to_mission = compose(start, inverse(self.odometry.pose))
             self.mission_log = MissionLog(
                 self.opt.log_dir, self.name, mission_id, max_bytes=self.opt.max_log_bytes,
                 manifest={"pattern": cmd.mission, "params": dict(cmd.params), "control": cmd.control,
@@ -342,7 +345,7 @@ class RobotHandle:
             self._end_mission(f"failed: mission crashed: {exc!r}")
             self._stop_motors(self.opt.estop_repeats)
             return "crashed"
-        self._trace_odo.append(self.odometry.pose[:2])
+        self._trace_odo.append(compose(self._odo_to_mission, self.odometry.pose)[:2])
         if out.done:
             self._end_mission("finished")
             self._stop_motors()

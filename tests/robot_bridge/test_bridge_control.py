@@ -97,10 +97,17 @@ def test_gyro_heading_beats_skidding_treads_and_learns_bias():
         odo.update(0, 0, bias, t)
     assert odo.gyro_bias == pytest.approx(bias, rel=0.05)
     assert abs(odo.yaw) < 0.02
+    n = 400
+    t += 0.01
+    odo.update(n, n, 2.0, t)       # driving and turning fast ...
+    t += 0.01
+    odo.update(n, n, 2.0, t)       # ... a sample with stalled counts is not "standing still"
+    assert odo.gyro_bias == pytest.approx(bias, rel=0.05)
+    odo.reset((0.0, 0.0, 0.0))
     quarter = int(round(math.pi / 2 * g.track_width_m / 2 / g.m_per_count))
     for k in range(1, 101):       # treads say 90 degrees, the robot skids and turns 70
         t += 0.01
-        odo.update(-quarter * k // 100, quarter * k // 100, math.radians(70) + bias, t)
+        odo.update(n - quarter * k // 100, n + quarter * k // 100, math.radians(70) + bias, t)
     assert odo.yaw == pytest.approx(math.radians(70), abs=math.radians(1.5))
 
 

