@@ -40,10 +40,11 @@ class Plan:
     point_turns: bool = False
     start_s: float = 0.0
     stops: list[tuple[float, float]] = field(default_factory=list)   # (t_start s, duration s)
+    _arc: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def arc_length(self) -> np.ndarray:
         """Cumulative length (m) at each vertex of the closed route, plus the total at the end."""
-        if getattr(self, "_arc", None) is None:
+        if self._arc is None:
             seg = np.hypot(*np.diff(np.vstack([self.points, self.points[:1]]), axis=0).T)
             self._arc = np.concatenate([[0.0], np.cumsum(seg)])
         return self._arc

@@ -18,7 +18,9 @@ Per pixel (after v2e, Hu et al. 2021, and ESIM, Rebecq et al. 2018):
 
 Performance: only pixels near robots change, so the model runs only inside regions of
 interest (the dilated union of each robot's footprint over the last few photoreceptor time
-constants); the memory of every other pixel stays as it is. With ``flicker_hz > 0`` the
+constants); the memory of every other pixel stays as it is. Inside them a pixel at rest
+(low-pass settled, no event owed) is skipped unless a robot that moved this step covers
+it. The ROI model gives the events of the full-frame model (tested). With ``flicker_hz > 0`` the
 whole sensor changes and the whole frame is simulated (slow; not real time).
 
 Robots are seen at their shell-top height (parallax, see :class:`simulator.camera.CeilingCamera`).
