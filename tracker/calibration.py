@@ -6,7 +6,10 @@ one mat corner, yaw counter-clockwise from +x). The calibration file is JSON::
     {"image_size": [w, h], "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}
 
 with at least 4 points (no 3 of the first 4 collinear). The same dict is accepted inside a
-lab config's camera table (``arena.config.CameraConfig.calibration``).
+lab config's camera table (``arena.config.CameraConfig.calibration``). Optional keys:
+``height_m`` (height above the mats of the plane the points were taken on, default 0) and
+``camera_height_m`` (height of the lens above the mats), used for the parallax correction
+of robots seen at their shell-top height (see :meth:`Calibration.parallax_factor`).
 """
 
 from __future__ import annotations
@@ -40,6 +43,8 @@ class Calibration:
     image_size: tuple[int, int]
     pixels: np.ndarray
     arena_m: np.ndarray
+    height_m: float = 0.0
+    camera_height_m: float | None = None
 
     def __post_init__(self) -> None:
         self._h = tuple(float(c) for c in np.asarray(self.H, dtype=np.float64).ravel())
@@ -81,14 +86,43 @@ class Calibration:
                 f"{source}: expected {{\"image_size\": [w, h], \"points\": [{{\"pixel\": [u, v], "
                 f"\"arena_m\": [x, y]}}, ...]}} ({type(exc).__name__}: {exc})") from None
         try:
-            return cls.from_points(px, am, size)
+            cal = cls.from_points(px, am, size)
+            cal.height_m = float(d.get("height_m", 0.0) or 0.0)
+            cam_h = d.get("camera_height_m")
+            cal.camera_height_m = None if cam_h is None else float(cam_h)
         except (ValueError, TypeError) as exc:
             raise CalibrationError(f"{source}: {exc}") from None
+        if cal.camera_height_m is not None and not cal.camera_height_m > cal.height_m:
+            raise CalibrationError(f"{source}: camera_height_m must be above height_m")
+        return cal
 
     def to_dict(self) -> dict:
-        return {"image_size": [int(self.image_size[0]), int(self.image_size[1])],
-                "points": [{"pixel": [float(u), float(v)], "arena_m": [float(x), float(y)]}
-                           for (u, v), (x, y) in zip(self.pixels, self.arena_m)]}
+        d = {"image_size": [int(self.image_size[0]), int(self.image_size[1])],
+             "points": [{"pixel": [float(u), float(v)], "arena_m": [float(x), float(y)]}
+                        for (u, v), (x, y) in zip(self.pixels, self.arena_m)]}
+        if self.height_m:
+            d["height_m"] = self.height_m
+        if self.camera_height_m is not None:
+            d["camera_height_m"] = self.camera_height_m
+        return d
+
+    def nadir_m(self) -> tuple[float, float]:
+        """Arena point under the camera, m: taken as the image centre's (a ceiling camera
+        looking down with its principal point at the centre)."""
+        return self.point_to_arena(self.image_size[0] / 2.0, self.image_size[1] / 2.0)
+
+    def parallax_factor(self, object_height_m: float, camera_height_m: float) -> float:
+        """Scale of distances from the nadir that brings a point seen at ``object_height_m``
+        (e.g. a shell top), mapped with this calibration, to its true arena position.
+
+        A ray from the lens (``camera_height_m`` above the mats) through a point at height
+        hr meets the calibrated plane (``height_m``) at q = c + (P - c)(H - hc)/(H - hr):
+        the factor is (H - hr)/(H - hc) (1 when the heights agree).
+        """
+        if not camera_height_m > max(object_height_m, self.height_m):
+            raise CalibrationError(f"camera height {camera_height_m} m must be above the object "
+                                   f"({object_height_m} m) and the calibration plane ({self.height_m} m)")
+        return (camera_height_m - object_height_m) / (camera_height_m - self.height_m)
 
     def save(self, path: str | Path) -> None:
         """Write the calibration JSON file."""

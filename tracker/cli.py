@@ -73,6 +73,10 @@ def register_track(sub) -> None:
     p.add_argument("--accumulation-ms", type=_positive_ms, default=100.0,
                    help="accumulation time t_a, ms (default 100, the paper's best)")
     p.add_argument("--chassis-cm", type=float, default=10.0, help="robot footprint side, cm (default 10)")
+    p.add_argument("--robot-height-cm", type=float, default=4.5,
+                   help="height of the shell tops the camera sees, cm (default 4.5; parallax correction)")
+    p.add_argument("--camera-height-m", type=float, default=None,
+                   help="lens height above the mats, m (default: the calibration's camera_height_m, else 2.5)")
     p.add_argument("--fleet-size", type=int, default=None,
                    help="number of robots (caps confirmed tracks; default: the lab config's robots)")
     p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
@@ -102,16 +106,32 @@ def run_track(args) -> int:
     return run_offline(args)
 
 
+def _check_geometry(args) -> None:
+    if not (args.chassis_cm > 0 and math.isfinite(args.chassis_cm)):
+        raise SystemExit(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
+    if not (0 <= args.robot_height_cm < 100):
+        raise SystemExit(f"arena track: --robot-height-cm must be in [0, 100), got {args.robot_height_cm}")
+    if args.camera_height_m is not None and not (args.camera_height_m > args.robot_height_cm / 100):
+        raise SystemExit(f"arena track: --camera-height-m must be above the robots, got {args.camera_height_m}")
+
+
+def pipeline_options(args) -> dict:
+    """Pipeline keyword arguments from the command line (both modes)."""
+    return dict(tracker=args.tracker, detector=args.detector, accumulation_us=int(round(args.accumulation_ms * 1000)),
+                chassis_m=args.chassis_cm / 100.0, backend=args.backend, robot_height_m=args.robot_height_cm / 100.0,
+                camera_height_m=args.camera_height_m)
+
+
 def run_offline(args) -> int:
     from arena.formats import FormatError, iter_events
+    from tracker.calibration import CalibrationError
     from tracker.pipeline import Pipeline, TrackCsvWriter, iter_slices
 
     if not args.tracks_out:
         raise SystemExit("arena track: --tracks-out CSV is required with --input")
     if args.fleet_size is not None and args.fleet_size < 1:
         raise SystemExit(f"arena track: --fleet-size must be >= 1, got {args.fleet_size}")
-    if not (args.chassis_cm > 0 and math.isfinite(args.chassis_cm)):
-        raise SystemExit(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
+    _check_geometry(args)
     cal = _load_calibration(args.calibration)
     fleet_size = args.fleet_size
     if fleet_size is None and Path(args.calibration).suffix.lower() == ".toml":
@@ -129,9 +149,10 @@ def run_offline(args) -> int:
         reader = iter_events(args.input)
     except (FormatError, OSError) as exc:
         raise SystemExit(f"arena track: {exc}") from None
-    pipe = Pipeline(cal, tracker=args.tracker, detector=args.detector,
-                    accumulation_us=int(round(args.accumulation_ms * 1000)),
-                    chassis_m=args.chassis_cm / 100.0, fleet_size=fleet_size, backend=args.backend)
+    try:
+        pipe = Pipeline(cal, fleet_size=fleet_size, **pipeline_options(args))
+    except CalibrationError as exc:
+        raise SystemExit(f"arena track: {exc}") from None
     slice_us = int(round(args.slice_ms * 1000))
     n_rows = n_slices = 0
     t0 = time.perf_counter()

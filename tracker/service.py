@@ -130,7 +130,7 @@ def run_live(args) -> int:
     from arena.service import Service, stop_on_signals
     from arena.session import SessionError, load_lab_from_args, open_session
     from tracker.calibration import Calibration, CalibrationError
-    from tracker.cli import _load_calibration
+    from tracker.cli import _check_geometry, _load_calibration, pipeline_options
 
     try:
         lab = load_lab_from_args(args)
@@ -154,12 +154,15 @@ def run_live(args) -> int:
     else:
         raise SystemExit("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
     fleet_size = args.fleet_size if args.fleet_size is not None else ((len(lab.robots) or None) if lab is not None else None)
-    def make_pipeline() -> Pipeline:
-        return Pipeline(cal, tracker=args.tracker, detector=args.detector,
-                        accumulation_us=int(round(args.accumulation_ms * 1000)),
-                        chassis_m=args.chassis_cm / 100.0, fleet_size=fleet_size, backend=args.backend)
+    _check_geometry(args)
 
-    pipe = make_pipeline()
+    def make_pipeline() -> Pipeline:
+        return Pipeline(cal, fleet_size=fleet_size, **pipeline_options(args))
+
+    try:
+        pipe = make_pipeline()
+    except CalibrationError as exc:
+        raise SystemExit(f"arena track: {exc}") from None
     name = args.name or f"tracker-{args.camera}"
     stop = stop_on_signals()
     csv_file = open(args.tracks_out, "w", newline="") if args.tracks_out else None

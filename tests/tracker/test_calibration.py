@@ -102,3 +102,21 @@ def test_arena_calibrate_cli_points_and_image(tmp_path):
     r = subprocess.run(arena_cmd("calibrate", "--size", "640x480", "--points", "1,2:0,0", "3,4:1,1", "-o", str(out)),
                        capture_output=True, text=True)
     assert r.returncode != 0 and "at least 4" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_parallax_factor_from_the_heights():
+    d = calibration_dict()
+    cal = Calibration.from_dict(d)
+    assert cal.parallax_factor(0.045, 2.5) == pytest.approx((2.5 - 0.045) / 2.5)
+    assert cal.nadir_m() == pytest.approx(cal.to_arena((320, 240)))
+    # points clicked on the shell tops: nothing to correct
+    top = Calibration.from_dict({**d, "height_m": 0.045, "camera_height_m": 2.4})
+    assert top.parallax_factor(0.045, 2.4) == pytest.approx(1.0)
+    assert Calibration.from_dict(top.to_dict()).camera_height_m == 2.4
+    with pytest.raises(CalibrationError, match="above"):
+        Calibration.from_dict({**d, "height_m": 3.0, "camera_height_m": 2.4})
+    from tracker.pipeline import Pipeline
+
+    assert Pipeline(top).parallax == pytest.approx(1.0)
+    assert Pipeline(cal).parallax == pytest.approx(0.982)                   # default: 4.5 cm shells, 2.5 m
+    assert Pipeline(cal, detector="paper", tracker="idtrack").parallax == 1.0  # the paper's plain homography
