@@ -18,7 +18,14 @@ Two detectors:
   cluster that holds several predicted robots, and a pose at the window's end: the
   cluster's events are fitted by a straight motion ``p(t) = p0 + w (t - t0)`` (least
   squares), evaluated at the end of the cluster's activity, which also gives the
-  velocity and the motion heading.
+  velocity and the motion heading. The cluster's shape gives the chassis orientation
+  modulo its symmetry (the 4th angular harmonic of a square footprint's outline points
+  at its corners): the fleet tracker resolves it with its heading prediction, which keeps
+  the heading right through zero-point turns, when there is no motion direction.
+
+All per-window work is O(active pixels): the statistics come per pixel (count, sum of
+times, sum of squared times), from :class:`tracker.accumulate.PixelWindow` or from the
+window's events.
 """
 
 from __future__ import annotations
@@ -214,7 +221,8 @@ class DetectorConfig:
     backend: str = "grid"
 
     def validate(self) -> None:
-        for name in ("chassis_m", "eps_chassis", "min_fill", "noise_false_rate", "min_area_chassis"):
+        for name in ("chassis_m", "eps_chassis", "min_fill", "noise_false_rate", "min_area_chassis",
+                     "chassis_aspect"):
             val = getattr(self, name)
             if not (isinstance(val, (int, float)) and val > 0 and math.isfinite(val)):
                 raise ValueError(f"detector {name} must be a positive number, got {val!r}")
