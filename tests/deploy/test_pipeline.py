@@ -49,6 +49,12 @@ def _logs(folder: Path) -> str:
                      if p.suffix in (".log", ".json") and p.name != "calib.json")
 
 
+def _status(lab, dep) -> subprocess.CompletedProcess:
+    """`arena status --json` run on the router host as a viewer."""
+    return subprocess.run(["ip", "netns", "exec", lab.ns("router"), *arena_cmd("status", "--json")],
+                          capture_output=True, text=True, timeout=30, env={**os.environ, **dep.env("router", "viewer")})
+
+
 def samples_between(events: list[dict], t0: float, t1: float, prefix: str) -> list[dict]:
     return [e for e in events if e["event"] == "sample" and t0 <= e["t"] < t1 and e["key"].startswith(prefix)]
 
@@ -102,15 +108,21 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
         time.sleep(1.0)
     assert mission.returncode == 0, mission.stdout + mission.stderr
 
-    # tracks reach the viewer (the tracker's first windows compile its numba kernels: allow time)
-    wait_log(logs / "viewer.out", '"arena/robots/', 120, viewer)
+    # tracks reach the viewer (the tracker's first windows compile its numba kernels: allow time;
+    # on an overloaded machine the simulator lags, a robot link stalls and its mission is aborted:
+    # start the missions again while waiting)
+    deadline = time.monotonic() + 150
+    while '"arena/robots/' not in (logs / "viewer.out").read_text():
+        if time.monotonic() > deadline:
+            status = _status(lab, dep)
+            pytest.fail(f"no track reached the viewer within 150 s; arena status: {status.stdout[-3000:]}\n{_logs(logs)}")
+        time.sleep(10.0)
+        start_missions()
 
     # -- phase 1: clean run; the health table of every host, from the router host -------------
     time.sleep(2.0)
     t_clean = time.time()
-    status = subprocess.run(["ip", "netns", "exec", lab.ns("router"), *arena_cmd("status", "--json")],
-                            capture_output=True, text=True, timeout=30,
-                            env={**os.environ, **dep.env("router", "viewer")})
+    status = _status(lab, dep)
     (logs / "status.json").write_text(status.stdout + status.stderr)
     time.sleep(max(0.0, 5.0 - (time.time() - t_clean)))
     # -- phase 2: 5 % loss and 50 ms jitter on the camera host's link (edge -> router -> tracker)
@@ -185,7 +197,7 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
         rows = list(csv.DictReader(fh))
     stop_s, log_report = {}, {}
     for robot in robots:
-        (log_csv,) = [p for p in bridge_logs.glob(f"{robot}_*.csv")]
+        log_csv = sorted(bridge_logs.glob(f"{robot}_*.csv"))[-1]  # the mission running at the cut
         with open(log_csv) as fh:
             tele = list(csv.DictReader(fh))
         before = [r for r in tele if r["event"] == "sample" and int(r["host_time_ns"]) < t_cut * 1e9]
