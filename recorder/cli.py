@@ -126,7 +126,7 @@ def run_record(args) -> int:
 def run_replay(args) -> int:
     """Run ``arena replay``; returns the exit code."""
     from arena.service import Service
-    from recorder.service import replay
+    from recorder.service import replay, wait_stop
 
     name = _name(args.name, "replay", "replay")
     if name is None:
@@ -142,7 +142,7 @@ def run_replay(args) -> int:
     stop = stop_on_signals()
     try:
         with open_session(args) as session, Service(session, "recorder", name) as svc:
-            if stop.wait(max(0.0, args.start_delay)):
+            if wait_stop(stop, max(0.0, args.start_delay)):
                 return 0
             pace = "as fast as possible" if args.speed == 0 else f"at {args.speed:g}x"
             print(f"replaying {path} {pace}{' in a loop' if args.loop else ''}", flush=True)

@@ -21,6 +21,21 @@ from arena.service import Service
 from recorder.mcapio import RecordedMessage, RunWriter, read_run
 
 
+def wait_stop(stop: threading.Event, timeout_s: float | None = None, tick_s: float = 0.2) -> bool:
+    """Wait until ``stop`` is set or ``timeout_s`` seconds passed (None: forever); True if stopped.
+
+    Waits in short ticks: a signal (SIGTERM from a launcher) may be delivered to any thread, and
+    Python runs its handler in the main thread only once that thread wakes up; an untimed
+    ``Event.wait()`` in the main thread could then sleep through the signal forever."""
+    deadline = None if timeout_s is None else time.monotonic() + timeout_s
+    while not stop.is_set():
+        left = tick_s if deadline is None else min(tick_s, deadline - time.monotonic())
+        if left <= 0:
+            return False
+        stop.wait(left)
+    return True
+
+
 @dataclass
 class RecordResult:
     """What one recording wrote: messages, payload bytes, samples dropped, seconds recorded."""
@@ -71,7 +86,7 @@ def record(session: zenoh.Session, path: str | Path, keys: Iterable[str], stop: 
         try:
             if on_ready is not None:
                 on_ready()
-            stop.wait(duration_s)
+            wait_stop(stop, duration_s)
         except KeyboardInterrupt:
             pass
         finally:
@@ -116,7 +131,7 @@ def replay(session: zenoh.Session, path: str | Path, stop: threading.Event, spee
                         t0_wall, t0_log = time.monotonic(), m.log_time_ns
                     due = t0_wall + (m.log_time_ns - t0_log) / 1e9 / speed
                     wait = due - time.monotonic()
-                    if wait > 0 and stop.wait(wait):
+                    if wait > 0 and wait_stop(stop, wait):
                         break
                     max_lag = max(max_lag, -wait)
                 pub = pubs.get(m.key)

@@ -118,7 +118,10 @@ def run(args) -> int:
             thread.start()
             print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
             try:
-                stop.wait()
+                # short ticks: SIGTERM may land on another thread and its Python handler runs only
+                # when the main thread wakes (an untimed wait could sleep through it)
+                while not stop.wait(0.2):
+                    pass
             except KeyboardInterrupt:
                 pass
             finally:

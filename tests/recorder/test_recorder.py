@@ -219,3 +219,25 @@ def test_cli_input_errors_exit_2_with_a_message(tmp_path, capsys):
     (tmp_path / "run.mcap").write_bytes(b"")
     assert main(["replay", str(tmp_path / "run.mcap"), "--speed", "-1"]) == 2
     assert "--speed" in capsys.readouterr().err
+
+
+def test_sigterm_delivered_to_another_thread_still_stops_and_finishes_the_file(router, tmp_path):
+    from tests.recorder.signals import term_other_thread
+
+    out = tmp_path / "run.mcap"
+    rec = subprocess.Popen(arena_cmd("record", str(out), *router.args), stdout=subprocess.PIPE,
+                           stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        wait_for_line(rec, "recording", timeout=60)
+        time.sleep(1.5)  # a status or two recorded
+        try:
+            term_other_thread(rec.pid)
+        except RuntimeError as exc:
+            pytest.skip(str(exc))
+        tail = rec.communicate(timeout=15)[0]
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+            rec.wait()
+    assert rec.returncode == 0, tail
+    assert list(read_run(out)), "the file was not finished"

@@ -172,3 +172,26 @@ def test_frame_rendered_once_per_new_window_for_all_pages():
         assert srv.frame_url(2) != url and st.frame_no == frames + 1
     finally:
         srv.server_close()
+
+
+def test_viewer_stops_on_sigterm_delivered_to_another_thread(router):
+    import os
+    import subprocess
+
+    from tests.conftest import arena_cmd, wait_for_line
+    from tests.recorder.signals import term_other_thread
+
+    view = subprocess.Popen(arena_cmd("view", "--port", "0", *router.args), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        wait_for_line(view, "viewer on", timeout=60)
+        try:
+            term_other_thread(view.pid)
+        except RuntimeError as exc:
+            pytest.skip(str(exc))
+        out = view.communicate(timeout=15)[0]
+    finally:
+        if view.poll() is None:
+            view.kill()
+            view.wait()
+    assert view.returncode == 0, out
