@@ -185,7 +185,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "certs", help="make the lab CA, host certificates and role passwords (TLS + user/password)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=__doc__.split("\n\n", 1)[1].split("The certificate's")[0].rstrip(),
+        description=__doc__.split("\n\n", 1)[1].split("The certificate's")[0].rstrip()
+        .replace("``", "").replace("::", ":"),
         epilog="Examples:\n"
                "  arena certs pki --hosts router=198.18.0.1,camera=198.18.0.2,tracker=198.18.0.3,robot=198.18.0.4\n"
                "  arena certs pki --hosts laptop                 # add a host later (the CA is reused)\n"
