@@ -23,18 +23,23 @@ same topic with encoding ``msgpack`` and schema ``arena.Raw`` holding the payloa
 from __future__ import annotations
 
 import json
+import logging
 import os
+import struct
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import msgpack
 import zenoh
-from mcap.reader import make_reader
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader
 from mcap.writer import CompressionType, Writer
 
 from arena.messages import MESSAGE_TYPES
 from recorder.schemas import schema_bytes, schema_name
+
+log = logging.getLogger("arena.recorder")
 
 PROFILE = "arena"
 LIBRARY = "arena-recorder"
@@ -198,10 +203,12 @@ def read_run(path: str | os.PathLike, keys: Iterable[str] | None = None) -> Iter
     """
     f = find_run_file(path)
     match = _matcher(keys)
-    try:
-        with open(f, "rb") as stream:
-            reader = make_reader(stream)
-            for _schema, channel, message in reader.iter_messages(log_time_order=False):
+    size = f.stat().st_size
+    with open(f, "rb") as stream:
+        # streamed record by record, so a recording cut short (recorder killed, disk full) is
+        # still read up to its last complete chunk
+        try:
+            for _schema, channel, message in NonSeekingReader(stream).iter_messages(log_time_order=False):
                 if not match(channel.topic):
                     continue
                 data = message.data
@@ -211,7 +218,11 @@ def read_run(path: str | os.PathLike, keys: Iterable[str] | None = None) -> Iter
                     raise RunFileError(f"{f}: channel {channel.topic!r} has encoding "
                                        f"{channel.message_encoding!r}, not one `arena record` writes")
                 yield RecordedMessage(channel.topic, bytes(data), message.log_time, message.publish_time)
-    except RunFileError:
-        raise
-    except Exception as exc:  # mcap raises several error types for corrupt or truncated files
-        raise RunFileError(f"{f}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None
+        except RunFileError:
+            raise
+        except (EndOfFile, struct.error) as exc:  # struct.error: a record header cut by the end of file
+            if isinstance(exc, struct.error) and stream.tell() < size:
+                raise RunFileError(f"{f}: corrupt MCAP record before byte {stream.tell()}") from None
+            log.warning("%s ends early (the recording was cut short): read up to its last complete chunk", f)
+        except Exception as exc:  # mcap raises several error types for corrupt files
+            raise RunFileError(f"{f}: not a readable MCAP file ({type(exc).__name__}: {exc})") from None

@@ -241,3 +241,14 @@ def test_sigterm_delivered_to_another_thread_still_stops_and_finishes_the_file(r
             rec.wait()
     assert rec.returncode == 0, tail
     assert list(read_run(out)), "the file was not finished"
+
+
+def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(tmp_path):
+    path = tmp_path / "cut.mcap"
+    with RunWriter(path, chunk_size=4096) as w:
+        for i in range(400):
+            w.add("arena/robots/a", Track(track_id=1, stamp_us=i, x=0.001 * i).encode(), 1_000 + i)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])  # as if the recorder was killed half way
+    got = [Track.decode(m.payload).stamp_us for m in read_run(path)]
+    assert 50 < len(got) < 400 and got == list(range(len(got)))
