@@ -128,7 +128,7 @@ class PoseEstimator:
     def __init__(self, stale_s: float = 0.3, pos_gain: float = 0.3, yaw_gain: float = 0.02,
                  history_s: float = 3.0, max_yaw_jump: float = math.radians(30), delay_s: float = 0.0,
                  max_spin_radps: float = 1.0, max_jump_m: float = 0.15, relock_after: int = 25,
-                 along_gain: float = 0.02):
+                 along_gain: float = 0.005):
         self.stale_s = stale_s
         self.delay_s = delay_s
         self.max_spin_radps = max_spin_radps
@@ -140,7 +140,9 @@ class PoseEstimator:
         self.along_gain = along_gain
         self.relock_after = relock_after
         self._outliers = 0
-        self._yaw_outliers = 0
+        self._course_outliers = 0
+        self._course: deque[tuple[float, float, float]] = deque()
+        self.heading_relocks = 0
         self._yaw_known = False
         self._pos_known = False
         self._T = (0.0, 0.0, 0.0)
@@ -208,27 +210,50 @@ class PoseEstimator:
             nx = fused[0] + c * ga - s_ * gc
             ny = fused[1] + s_ * ga + c * gc
         nth = fused[2]
+        before = self._odo_at(t_pose - 0.2)
+        steady = before is not None and (
+            abs(wrap_angle(odo[2] - before[2])) / 0.2 <= self.max_spin_radps
+            and math.hypot(odo[0] - before[0], odo[1] - before[1]) >= 0.01)   # driving, not spinning
         if yaw is not None and math.isfinite(yaw):
-            before = self._odo_at(t_pose - 0.2)
-            steady = before is not None and (
-                abs(wrap_angle(odo[2] - before[2])) / 0.2 <= self.max_spin_radps
-                and math.hypot(odo[0] - before[0], odo[1] - before[1]) >= 0.01)   # driving, not spinning
             dyaw = wrap_angle(yaw - fused[2])
             if not self._yaw_known:
                 nth = yaw
                 self._yaw_known = True
             elif steady and abs(dyaw) <= self.max_yaw_jump:
                 nth = wrap_angle(fused[2] + self.yaw_gain * dyaw)
-                self._yaw_outliers = 0
-            elif steady:
-                self._yaw_outliers += 1   # driving steadily yet far off: after many, trust the tracks
-                if self._yaw_outliers >= 4 * self.relock_after:
-                    nth = yaw
-                    self._yaw_outliers = 0
+        nth = self._check_course(t_pose, x, y, odo, nth)
         self._T = compose((nx, ny, nth), inverse(odo))
         self.last_track_t = t_pose if self.last_track_t is None else max(self.last_track_t, t_pose)
         self.tracks_used += 1
         return True
+
+    def _check_course(self, t_pose: float, x: float, y: float, odo, nth: float) -> float:
+        """Heading sanity check from positions only (no shape ambiguity): while odometry says the
+        robot drove straight for 0.5 s, the tracks' displacement gives its course. If that
+        disagrees with the fused heading by more than ``max_yaw_jump`` on ``relock_after``
+        tracks in a row, the heading re-locks onto the course (a wrong initial heading)."""
+        self._course.append((t_pose, x, y))
+        while self._course and self._course[0][0] < t_pose - 0.6:
+            self._course.popleft()
+        t0, x0, y0 = self._course[0]
+        o0 = self._odo_at(t0)
+        if o0 is None or t_pose - t0 < 0.4:
+            return nth
+        moved = math.hypot(odo[0] - o0[0], odo[1] - o0[1])
+        forward = math.cos(math.atan2(odo[1] - o0[1], odo[0] - o0[0]) - odo[2]) > 0.9
+        if moved < 0.05 or not forward or abs(wrap_angle(odo[2] - o0[2])) > math.radians(5) \
+                or math.hypot(x - x0, y - y0) < 0.6 * moved:
+            return nth
+        course = math.atan2(y - y0, x - x0)
+        if abs(wrap_angle(course - nth)) <= self.max_yaw_jump:
+            self._course_outliers = 0
+            return nth
+        self._course_outliers += 1
+        if self._course_outliers < self.relock_after:
+            return nth
+        self._course_outliers = 0
+        self.heading_relocks += 1
+        return course
 
     def pose(self):
         """Current fused pose (x, y, yaw), arena frame."""

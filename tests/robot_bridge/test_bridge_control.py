@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from robot_bridge.control import PoseEstimator, WheelPID, path_error
-from robot_bridge.odometry import Odometry, WheelGeometry, calibrate_track_width
+from robot_bridge.odometry import Odometry, WheelGeometry, calibrate_track_width, wrap_angle
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_bridge_paths.py"
 
@@ -134,3 +134,16 @@ def test_closed_loop_on_the_real_tracker_fed_by_the_simulated_event_camera():
     closed, _, _, _ = bench.simulate("circle", params, 1.0, "closed", seed=4, tracker=True)
     assert closed.mean_m < 0.015 and closed.coverage_m < 0.02
     assert closed.mean_m * 5 <= paper.mean_m
+
+
+def test_wrong_initial_heading_relocks_on_the_course_of_the_tracks():
+    est = PoseEstimator()
+    est.add_odometry(0.0, (0.0, 0.0, 0.0))
+    est.set_pose((0.5, 0.5, math.pi / 2))      # told +y, but the robot drives +x
+    for k in range(1, 301):
+        t = k * 0.01
+        est.add_odometry(t, (0.2 * t, 0.0, 0.0))
+        if k % 2 == 0:
+            est.add_track(t, 0.5 + 0.2 * t, 0.5, math.pi / 2)   # a tracker heading 90 degrees off, too
+    assert est.heading_relocks >= 1
+    assert abs(wrap_angle(est.pose()[2])) < math.radians(10)
