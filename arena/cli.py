@@ -63,7 +63,7 @@ def _register_router(sub) -> None:
 
 
 def _run_router(args) -> int:
-    from arena.service import Service, stop_on_signals
+    from arena.service import Service, stop_on_signals, wait_until_stopped
     from arena.session import ZenohSettings
 
     # Without -l, a --zenoh-config file's own listen endpoints are kept (e.g. deploy/zenoh/router.json5).
@@ -84,7 +84,7 @@ def _run_router(args) -> int:
         with open_session(settings) as session, Service(session, "router", name):
             print(f"arena router {session.zid()} listening on {', '.join(settings.listen)}"
                   + (f", connected to {', '.join(settings.connect)}" if settings.connect else ""), flush=True)
-            stop.wait(args.duration)
+            wait_until_stopped(stop, args.duration)
     except KeyboardInterrupt:
         pass
     except SessionError as exc:
@@ -219,7 +219,7 @@ def _line(key: str, msg: Message) -> str:
 
 
 def _run_watch(args) -> int:
-    from arena.service import stop_on_signals
+    from arena.service import stop_on_signals, wait_until_stopped
 
     stop = stop_on_signals()
     n = 0
@@ -246,7 +246,7 @@ def _run_watch(args) -> int:
     try:
         with open_session(args) as session:
             session.declare_subscriber(args.keyexpr, on_sample)
-            stop.wait(args.duration)
+            wait_until_stopped(stop, args.duration)
     except KeyboardInterrupt:
         pass
     except SessionError as exc:

@@ -26,7 +26,7 @@ import zenoh
 from arena.keys import alive_key, status_key
 from arena.messages import Status
 
-__all__ = ["Service", "stop_on_signals"]
+__all__ = ["Service", "stop_on_signals", "wait_until_stopped"]
 
 
 class Service:
@@ -175,3 +175,17 @@ def stop_on_signals() -> threading.Event:
         signal.signal(signal.SIGTERM, handler)
         signal.signal(signal.SIGINT, handler)
     return stop
+
+
+def wait_until_stopped(stop: threading.Event, duration_s: float | None = None, tick_s: float = 0.2) -> None:
+    """Wait for ``stop`` (or ``duration_s``) in short ticks.
+
+    An untimed ``Event.wait()`` can sleep through SIGTERM: when the kernel delivers the signal to
+    one of Zenoh's threads, Python runs the handler only once the main thread wakes up.
+    """
+    import time
+
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    while not stop.wait(tick_s):
+        if deadline is not None and time.monotonic() >= deadline:
+            return
