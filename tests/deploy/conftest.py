@@ -44,7 +44,8 @@ class Deployment:
     def __init__(self, lab: NetLab, root: Path):
         self.lab, self.root = lab, root
         self.pki = root / "pki"
-        hosts = ",".join(f"{h}={lab.addr(h)}" for h in ("router", "camera", "tracker", "robot"))
+        # `console`: the certificate of clients on the router host (router.pem is the router's alone)
+        hosts = ",".join(f"{h}={lab.addr(h)}" for h in ("router", "camera", "tracker", "robot")) + ",console"
         subprocess.run(arena_cmd("certs", str(self.pki), "--hosts", hosts), check=True, capture_output=True)
         subprocess.run(arena_cmd("certs", str(root / "rogue-pki"), "--hosts", "camera=198.18.0.2", "--users", ""),
                        check=True, capture_output=True)
@@ -55,11 +56,13 @@ class Deployment:
         self.router_proc: subprocess.Popen | None = None
 
     def client_config(self, host: str, pki: Path | None = None, mtls: bool = True) -> Path:
-        """deploy/zenoh/client.json5 installed on ``host`` (its certificate as host.pem/host.key)."""
+        """deploy/zenoh/client.json5 installed on ``host`` (its certificate as host.pem/host.key;
+        on the router host, the `console` certificate)."""
         pki = pki or self.pki
+        cert = "console" if host == "router" and pki == self.pki else host
         text = (DEPLOY / "client.json5").read_text()
-        text = text.replace("/etc/arena/pki/host.pem", f"{pki}/{host}.pem")
-        text = text.replace("/etc/arena/pki/host.key", f"{pki}/{host}.key")
+        text = text.replace("/etc/arena/pki/host.pem", f"{pki}/{cert}.pem")
+        text = text.replace("/etc/arena/pki/host.key", f"{pki}/{cert}.key")
         text = text.replace("/etc/arena/pki/", f"{self.pki}/")  # the lab CA
         if not mtls:
             text = text.replace("enable_mtls: true", "enable_mtls: false")

@@ -118,7 +118,7 @@ def test_systemd_units_run_valid_arena_commands(unit):
 def test_compose_services_run_valid_arena_commands():
     yaml = pytest.importorskip("yaml")
     compose = yaml.safe_load((DEPLOY / "docker" / "compose.yaml").read_text())
-    produced = {"ca.pem", "users.txt"} | {f"{h}.{e}" for h in ("router", "camera", "tracker", "robot")
+    produced = {"ca.pem", "users.txt"} | {f"{h}.{e}" for h in ("router", "camera", "tracker", "robot", "console")
                                           for e in ("pem", "key")} | {f"{u}.env" for u in
                                           ("edge", "tracker", "bridge", "groundtruth", "viewer")}
     missing = []
