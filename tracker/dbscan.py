@@ -200,13 +200,20 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
         half[dy + rad] = w
     bw = u.max() - umin + 1
     bh = v.max() - vmin + 1
-    # small disks: sum the bitmap's runs directly; large ones: row prefix sums (2 reads a run)
-    use_prefix = 2 * rad + 1 > 16
+    # row prefix sums of the occupancy, only on the rows a dense cell's disk can reach
+    # (2 reads per run)
     occ = np.zeros((bh, bw + 1), dtype=np.int16)
     for i in range(n):
         occ[v[i] - vmin, u[i] - umin + 1] = 1
-    if use_prefix:
-        for r in range(bh):
+    need = np.zeros(bh, dtype=np.bool_)
+    for c in range(ncell):
+        if dense[c]:
+            r0 = max((c // gw) * cell - rad, 0)
+            r1 = min((c // gw + 1) * cell + rad, bh)
+            for r in range(r0, r1):
+                need[r] = True
+    for r in range(bh):
+        if need[r]:
             for x in range(bw):
                 occ[r, x + 1] += occ[r, x]
     core = np.zeros(n, dtype=np.bool_)
@@ -224,11 +231,7 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
                 w = half[dy + rad]
                 lo = max(x - w, 0)
                 hi = min(x + w + 1, bw)
-                if use_prefix:
-                    k += occ[r, hi] - occ[r, lo]
-                else:
-                    for xx in range(lo + 1, hi + 1):
-                        k += occ[r, xx]
+                k += occ[r, hi] - occ[r, lo]
             core[a] = k >= min_samples
 
     # 2. union of cores: all cores of a cell at once, then pairs of cells
