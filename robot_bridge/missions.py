@@ -23,7 +23,7 @@ Any pattern takes ``pause_s`` and ``pause_every_m`` (stop-and-go: stand still
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -108,7 +108,6 @@ class Mission:
     segments: list[Segment]
     speed_mps: float
     start: Pose = (0.0, 0.0, 0.0)
-    meta: dict = field(default_factory=dict)
 
     def path(self, step_m: float = 0.005) -> np.ndarray:
         """The commanded shape: samples of every line/arc phase, shape (n, 2), m."""

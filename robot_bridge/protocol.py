@@ -374,7 +374,6 @@ ERR_BAD_VERSION = 1
 ERR_UNKNOWN_TYPE = 2
 ERR_BAD_LENGTH = 3
 ERR_BAD_VALUE = 4
-ERR_CRC = 5
 
 
 @dataclass(frozen=True)

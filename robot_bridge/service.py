@@ -464,6 +464,8 @@ class Bridge:
                     self.svc.gauge(f"{name}.missing", st.missing)
                     self.svc.gauge(f"{name}.phase", h.runner.phase if h.runner else ("e-stop" if h.estop else "idle"))
                     self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
+                    self.svc.gauge(f"{name}.samples", h.samples)
+                    self.svc.gauge(f"{name}.published", h.published)
                     res = h.last_result
                     if res:
                         self.svc.gauge(f"{name}.last_mission", f"{res['mission_id']}: {res['status']}")

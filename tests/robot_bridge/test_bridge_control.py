@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from robot_bridge.control import PoseEstimator, WheelPID, path_error
-from robot_bridge.odometry import Odometry, WheelGeometry, calibrate_track_width, wrap_angle
+from robot_bridge.odometry import (Odometry, WheelGeometry, calibrate_sprocket_diameter, calibrate_track_width,
+                                   wrap_angle)
 
 BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_bridge_paths.py"
 
@@ -34,6 +35,9 @@ def test_odometry_straight_and_spin():
     _, _, yaw = odo.update(n - quarter, n + quarter)
     assert yaw == pytest.approx(math.pi / 2, abs=1e-3)
     assert calibrate_track_width(-quarter, quarter, math.pi / 2 / 1.2, g) == pytest.approx(0.09 * 1.2, rel=1e-3)
+    assert calibrate_sprocket_diameter(n, n, 0.3 * 0.98, g) == pytest.approx(0.038 * 0.98, rel=1e-3)  # 2 % slip
+    with pytest.raises(ValueError, match="at least 30 degrees"):
+        calibrate_track_width(0, 10, 0.1, g)
 
 
 def test_wheel_pid_feedforward_and_integral():
