@@ -87,17 +87,25 @@ class PixelWindow:
             raise ValueError(f"sensor size must be positive, got {width}x{height}")
         self.width, self.height = int(width), int(height)
         self.accumulation_us = int(accumulation_us)
-        n = self.width * self.height
-        self._slot = np.full(n, -1, dtype=np.int64)
-        self._active = np.zeros(n, dtype=np.int64)
-        self._count = np.zeros(n, dtype=np.int64)
-        self._on = np.zeros(n, dtype=np.int64)
-        self._st = np.zeros(n, dtype=np.float64)
-        self._st2 = np.zeros(n, dtype=np.float64)
+        # pixel -> slot map (int32: the only sensor-sized array, touched at random); the
+        # statistics live in slots, sized to the active pixels and grown on demand, so
+        # they stay in cache
+        self._slot = np.full(self.width * self.height, -1, dtype=np.int32)
+        self._alloc(1 << 14)
         self._n_active = 0
         self._slices: deque[tuple[int, np.ndarray]] = deque()
         self.t_ref_us: int | None = None
         self.n_events = 0
+
+    def _alloc(self, cap: int) -> None:
+        old = getattr(self, "_active", None)
+        arrays = [np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64),
+                  np.zeros(cap, dtype=np.float64), np.zeros(cap, dtype=np.float64)]
+        if old is not None:
+            m = self._n_active
+            for new, cur in zip(arrays, (self._active, self._count, self._on, self._st, self._st2)):
+                new[:m] = cur[:m]
+        self._active, self._count, self._on, self._st, self._st2 = arrays
 
     def _check(self, ev: np.ndarray) -> None:
         if ev.size and (int(ev["x"].max()) >= self.width or int(ev["y"].max()) >= self.height):
@@ -107,6 +115,9 @@ class PixelWindow:
     def _run(self, ev: np.ndarray, sign: int) -> None:
         if ev.size == 0:
             return
+        need = self._n_active + (ev.size if sign > 0 else 0)
+        if need > self._active.size:
+            self._alloc(max(need, 2 * self._active.size))
         self._n_active = _apply(ev["x"], ev["y"], ev["p"], ev["t"], sign, self.t_ref_us, self.width,
                                 self._slot, self._active, self._count, self._on, self._st, self._st2,
                                 self._n_active)
