@@ -18,6 +18,7 @@ CPU time is what the code costs. Then 16 robots: does ours keep up with 100 Hz?
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
@@ -98,10 +99,13 @@ def main(argv=None) -> int:
           f"(target >= 50x; <= 2 ms per slice: median {np.median(w):.2f} ms wall, {np.median(c):.2f} ms cpu)")
     rec16 = generate(Scenario(16, "circle", 1.0, args.seconds, seed=16, stagger_s=0.05))
     w16, c16, n16 = time_ours(rec16, _slices(rec16, t_from), t_from)
-    keeps = np.mean(w16) < 10.0
-    print(f"16 robots (~{n16} events/window): median {np.median(w16):.2f} ms, mean {np.mean(w16):.2f} ms, "
-          f"p99 {np.percentile(w16, 99):.2f} ms wall, cpu median {np.median(c16):.2f} ms -> "
-          f"{'keeps up with' if keeps else 'FALLS BEHIND'} 100 Hz (10 ms per slice)")
+    # keeping up = the work per slice fits in a slice: judged on CPU time (what the code costs
+    # on one core), wall time shown too (it includes whatever else runs on the machine)
+    keeps = np.mean(c16) < 10.0
+    print(f"16 robots (~{n16} events/window): cpu mean {np.mean(c16):.2f} ms, median {np.median(c16):.2f} ms; "
+          f"wall median {np.median(w16):.2f} ms, p99 {np.percentile(w16, 99):.2f} ms -> "
+          f"{'keeps up with' if keeps else 'FALLS BEHIND'} 100 Hz (10 ms of work per 10 ms slice)")
+    print(f"machine load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     return 0
 
 
