@@ -110,7 +110,7 @@ class RobotConfig:
 class ZenohConfig:
     """How services of this lab reach Zenoh (see ``docs/deployment.md``)."""
 
-    mode: str = "peer"
+    mode: str = "client"
     connect: list[str] = field(default_factory=list)
     listen: list[str] = field(default_factory=list)
     multicast_scouting: bool = False
@@ -320,7 +320,7 @@ def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | No
     if not isinstance(tls, dict) or not all(isinstance(v, (str, bool)) for v in tls.values()):
         raise z._err("tls", "a table of strings (file paths) and booleans", tls)
     lab.zenoh = ZenohConfig(
-        mode=z.str("mode", "peer", choices=_MODES),
+        mode=z.str("mode", "client", choices=_MODES),
         connect=z.str_list("connect", _ENDPOINT_RE, "endpoints like 'tcp/192.0.2.1:7447'"),
         listen=z.str_list("listen", _ENDPOINT_RE, "endpoints like 'tcp/0.0.0.0:7447'"),
         multicast_scouting=z.bool("multicast_scouting", False),

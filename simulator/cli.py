@@ -9,6 +9,7 @@ each device listens. Robots, sensor size and ports come from flags or a lab conf
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -66,6 +67,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="number of robots (default 4, or the lab config's robots)")
     p.add_argument("--autopilot", choices=("none",) + PATTERN_CHOICES, default="none",
                    help="built-in driver (default none: robots obey their firmware link)")
+    p.add_argument("--layout", choices=("circle", "square", "mixed"), default=None,
+                   help="without autopilot: start poses for missions driven by the bridge: circle "
+                        "(bottom of a centred circle, heading +x), square (bottom-left corner of a "
+                        "centred square), mixed (circles and squares alternately); default circle")
     p.add_argument("--power", type=float, default=1.0,
                    help="autopilot motor power, fraction of full (the paper: 0.5 or 1.0)")
     p.add_argument("--lighting", choices=LIGHTING_CHOICES, default="full", help="ceiling lighting")
@@ -137,6 +142,18 @@ def _robots_from_args(args) -> tuple[list, dict]:
     return Scenario(n_robots=n, pattern=pattern, seed=args.seed).robot_specs(), opts
 
 
+def layout_poses(layout: str, n: int, arena_m: float) -> list[tuple[float, float, float]]:
+    """Start poses (x m, y m, yaw rad) of ``n`` robots for missions started from where they stand:
+    each robot gets a cell; a circle starts at its bottom heading +x (counter-clockwise around the
+    cell centre), a square at its bottom-left corner heading +x."""
+    from simulator.autopilot import make_plans
+
+    circles, squares = make_plans("circle", n, arena_m), make_plans("square", n, arena_m)
+    pick = {"circle": lambda i: circles[i], "square": lambda i: squares[i],
+            "mixed": lambda i: circles[i] if i % 2 == 0 else squares[i]}[layout]
+    return [pick(i).start_pose() for i in range(n)]
+
+
 def _check_args(args) -> None:
     if args.robots is not None and not 0 <= args.robots <= 50:
         raise SystemExit(f"arena sim: --robots must be in 0..50, got {args.robots}")
@@ -162,12 +179,15 @@ def run(args) -> int:
     from simulator.autopilot import Autopilot, make_plans
     from simulator.camera import CeilingCamera
     from simulator.dvs import DvsParams
-    from simulator.evt3 import CameraServer
+    from simulator.evt3 import CameraServer, stream_header
     from simulator.recording import RawWriter, TruthCsvWriter
     from simulator.simulation import Simulation
     from simulator.world import World
 
     specs, opts = _robots_from_args(args)
+    if args.autopilot == "none" and args.layout:
+        specs = [dataclasses.replace(spec, start=pose)
+                 for spec, pose in zip(specs, layout_poses(args.layout, len(specs), 1.83))]
     world = World(specs, lighting=args.lighting, seed=args.seed)
     camera = CeilingCamera(opts["width"], opts["height"], seed=args.seed)
     pilot = None
@@ -184,7 +204,8 @@ def run(args) -> int:
         with ExitStack() as stack:
             try:
                 cam = stack.enter_context(CameraServer(args.host, opts["camera_port"],
-                                                       drop_when_slow=not args.fast))
+                                                       drop_when_slow=not args.fast,
+                                                       header=stream_header(camera.width, camera.height)))
             except OSError as e:
                 raise SystemExit(f"arena sim: cannot listen on camera port {opts['camera_port']}: {e}")
             print(f"camera   {cam.url}   EVT 3.0, {camera.width}x{camera.height}", flush=True)

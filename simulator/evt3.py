@@ -178,6 +178,13 @@ def encode_evt3(events: np.ndarray) -> bytes:
     return Evt3Encoder().encode(events)
 
 
+def stream_header(width: int, height: int) -> bytes:
+    """Prophesee RAW-style text header announcing EVT 3.0 and the sensor geometry (``% end``
+    terminated); ``arena edge`` reads it from a ``tcp://`` stream to learn width and height."""
+    return (f"% evt 3.0\n% format EVT3;height={height};width={width}\n% geometry {width}x{height}\n"
+            f"% end\n").encode()
+
+
 class CameraServer:
     """A TCP server on ``host:port`` streaming EVT 3.0 to every connected client, like a
     USB event camera: each client gets the stream from the moment it connects, in packets
@@ -187,11 +194,13 @@ class CameraServer:
     ``drop_when_slow`` (real time) a client that cannot keep up loses whole packets
     (counted in ``dropped_packets``) instead of stalling the camera; otherwise the
     publisher blocks until the client has read them (as fast as possible, lossless).
-    Port 0 picks a free port; :attr:`port` holds the actual one.
+    Port 0 picks a free port; :attr:`port` holds the actual one. ``header`` (e.g. from
+    :func:`stream_header`) is sent first to every client, so it learns the sensor geometry.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, packet_bytes: int = 16384,
-                 drop_when_slow: bool = True, max_queue: int = 256):
+                 drop_when_slow: bool = True, max_queue: int = 256, header: bytes | None = None):
+        self.header = header
         self.packet_bytes = int(packet_bytes)
         self.drop_when_slow = drop_when_slow
         self.max_queue = max_queue
@@ -268,6 +277,8 @@ class CameraServer:
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             log.info("camera client %s:%d connected", *addr[:2])
             c = _Client(conn, self.max_queue)
+            if self.header:
+                c.q.put(self.header)
             with self._lock:
                 self._clients.append(c)
 

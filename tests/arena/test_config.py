@@ -17,7 +17,7 @@ def test_example_config_matches_the_papers_lab():
     assert [r.name for r in lab.robots] == ["zumo1", "zumo2", "zumo3", "zumo4"]
     assert lab.robot("zumo1").color_rgb == (20, 20, 20)
     assert lab.robot("zumo2").marker_id == 2
-    assert lab.zenoh.mode == "peer" and lab.zenoh.multicast_scouting is False
+    assert lab.zenoh.mode == "client" and lab.zenoh.multicast_scouting is False
     assert lab.service("tracker")["accumulation_ms"] == 100
 
 

@@ -1,0 +1,290 @@
+"""``arena demo``: the whole lab in one command, on the built-in simulated arena.
+
+It runs the real system, not a shortcut: the same processes, Zenoh keys and code paths a lab runs.
+As separate processes: a router, the simulator (event camera over TCP, webcam over MJPEG, robots on
+``socket://`` serial URLs), ``arena edge`` on the simulated camera, ``arena track``, ``arena bridge``
+driving the missions on the emulated robots, ``arena groundtruth`` on the simulated webcam, a live
+scorer and the MCAP recorder (and ``arena view`` with ``--view``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+from demo.supervisor import ProcSpec, Supervisor, python_cmd
+
+log = logging.getLogger("arena.demo")
+
+MISSIONS = ("circle", "square", "mixed")
+LIGHTING = ("full", "dimmed", "dark")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo", help="the whole lab in one command, on the built-in simulated arena",
+        formatter_class=argparse.RawDescriptionHelpFormatter, description=__doc__,
+        epilog="Examples:\n"
+               "  arena demo                                   # 4 robots, circles and squares, 30 s\n"
+               "  arena demo --robots 2 --mission circle --power 0.5 --duration 20\n"
+               "  arena demo --lighting dimmed --view         # and open http://127.0.0.1:8080\n"
+               "  arena demo --duration 10 --out /tmp/runs --quiet\n"
+               "Afterwards: arena replay RUN_DIR & arena view   # watch the recorded run again")
+    p.add_argument("--robots", type=int, default=4, help="number of robots, 1-16 (default 4)")
+    p.add_argument("--mission", choices=MISSIONS, default="mixed",
+                   help="circle, square, or mixed: circles and squares alternately (default)")
+    p.add_argument("--power", type=float, default=1.0, help="motor power fraction: 1.0 (~0.46 m/s) or 0.5 (default 1.0)")
+    p.add_argument("--lighting", choices=LIGHTING, default="full", help="ceiling lighting (default full)")
+    p.add_argument("--duration", type=float, default=30.0, help="seconds of missions (default 30)")
+    p.add_argument("--seed", type=int, default=0, help="simulator seed (default 0)")
+    p.add_argument("--tracker", choices=("fleet", "idtrack"), default="fleet", help="tracker (default fleet)")
+    p.add_argument("--out", default="runs", help="parent folder of the run folder (default ./runs)")
+    p.add_argument("--view", action="store_true", help="also start the web viewer (arena view)")
+    p.add_argument("--view-port", type=int, default=8080, help="viewer port (default 8080)")
+    p.add_argument("--quiet", action="store_true", help="no live table, only the final summary")
+    p.set_defaults(func=run)
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _mission_for(i: int, mission: str) -> str:
+    if mission == "mixed":
+        return "circle" if i % 2 == 0 else "square"
+    return mission
+
+
+def _robot_names(n: int) -> list[str]:
+    """The simulator's robot names (colour + index), which the bridge and scorer use as well."""
+    from simulator.scenarios import Scenario
+
+    return [spec.name for spec in Scenario(n_robots=n).robot_specs()]
+
+
+def _print_table(line: str, quiet: bool, t0: float | None, duration: float) -> None:
+    if quiet or t0 is None or not line.startswith("TABLE "):
+        return
+    from demo.scorer import format_rows
+
+    data = json.loads(line[6:])
+    elapsed = time.monotonic() - t0
+    text = format_rows(data["rows"], data["latency"])
+    header = f"--- t = {elapsed:5.1f} s of {duration:.0f} s " + "-" * 40
+    if sys.stdout.isatty():
+        sys.stdout.write("\x1b[H\x1b[J")
+    print(header + "\n" + text, flush=True)
+
+
+def run(args) -> int:
+    if not 1 <= args.robots <= 16:
+        print("arena demo: --robots must be between 1 and 16", file=sys.stderr)
+        return 2
+    if not 0.05 <= args.power <= 1.0:
+        print("arena demo: --power must be in (0, 1], e.g. 1.0 or 0.5", file=sys.stderr)
+        return 2
+    if args.duration <= 0:
+        print("arena demo: --duration must be positive", file=sys.stderr)
+        return 2
+    from arena.service import stop_on_signals
+    from arena.session import SessionError, ZenohSettings, open_session
+
+    run_dir = Path(args.out) / datetime.now().strftime("demo-%Y%m%d-%H%M%S")
+    run_dir.mkdir(parents=True, exist_ok=False)
+    logs = run_dir / "logs"
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    z = ["-e", endpoint]
+    cam_port, web_port, robot_base = _free_port(), _free_port(), _free_port()
+    robots = _robot_names(args.robots)
+    print(f"arena demo: {args.robots} robots, {args.mission} missions at {args.power:.0%} power, "
+          f"{args.lighting} light, {args.duration:.0f} s; run folder {run_dir}", flush=True)
+    stop = stop_on_signals()
+    t_start = time.monotonic()
+    clock = {"t0": None}  # start of the missions, for the live table
+    first_track_s = None
+    sup = Supervisor(logs)
+    code = 0
+    calib = run_dir / "cam0.calib.json"
+    try:
+        sup.start(ProcSpec("router", python_cmd("router", "-l", endpoint, "--name", "demo"), ready="listening on"))
+        with open_session(ZenohSettings(mode="client", connect=[endpoint]), wait_s=10) as session:
+            alive = _AliveSet(session)
+            sim = python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
+                             "--camera-port", str(cam_port), "--webcam-port", str(web_port),
+                             "--robot-base-port", str(robot_base), "--layout", _layout(args.mission),
+                             "--truth-csv", str(run_dir / "truth.csv"), "--calibration-out", str(calib),
+                             "--record-raw", str(run_dir / "events.raw"), "--publish-truth", *z)
+            sup.start(ProcSpec("sim", sim, ready="running", ready_timeout_s=90))
+            # the rest start together (each imports numpy/numba/OpenCV: seconds of CPU), then we wait for all
+            specs = [ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name", "demo", *z),
+                              ready_check=alive.has("recorder", "demo"), ready_timeout_s=90)]
+            specs.append(ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
+                                  ready_check=alive.has("edge", "cam0"), ready_timeout_s=90))
+            specs.append(ProcSpec("tracker", python_cmd("track", "--camera", "cam0", "--calibration", str(calib),
+                                                     "--tracker", args.tracker, "--fleet-size", str(args.robots),
+                                                     "--name", "cam0", "--tracks-out", str(run_dir / "tracks.csv"), *z),
+                                  ready_check=alive.has("tracker", "cam0"), ready_timeout_s=90))
+            web = f"http://127.0.0.1:{web_port}"
+            specs.append(ProcSpec("groundtruth", python_cmd("groundtruth", "--video", f"{web}/stream.mjpg",
+                                                         "--calibration", f"{web}/calibration.json", "--clock", "stream",
+                                                         "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"), *z),
+                                  ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90))
+            specs.append(ProcSpec("scorer", [sys.executable, "-m", "demo.scorer", *z], ready="scorer ready",
+                                  on_line=lambda ln: _print_table(ln, args.quiet, clock["t0"], args.duration)))
+            if args.view:
+                specs.append(ProcSpec("viewer", python_cmd("view", "--port", str(args.view_port), "--name", "demo",
+                                                           "--calibration", str(calib), *z), ready="viewer on"))
+            bridge = python_cmd("bridge", "run", *[a for i, r in enumerate(robots)
+                                                   for a in ("--robot", f"{r}=socket://127.0.0.1:{robot_base + i}")],
+                                "--name", "demo", "--log-dir", str(run_dir / "telemetry"), *z)
+            specs.append(ProcSpec("bridge", bridge, ready_check=alive.has("bridge", "demo"), ready_timeout_s=90,
+                                  stop_timeout_s=5))
+            for proc in [sup.start(spec, wait=False) for spec in specs]:
+                proc.wait_ready()
+            print(f"all services up ({time.monotonic() - t_start:.1f} s after launch)"
+                  + (f"; viewer: http://127.0.0.1:{args.view_port}" if args.view else ""), flush=True)
+            _start_missions(session, robots, args)
+            print(f"missions started ({time.monotonic() - t_start:.1f} s after launch)", flush=True)
+            t_missions = time.monotonic()
+            clock["t0"] = t_missions
+            while time.monotonic() - t_missions < args.duration + 1 and not stop.is_set():
+                dead = [n for n in sup.dead() if not n.startswith("cmd-")]
+                if dead:
+                    raise RuntimeError(f"{', '.join(dead)} stopped unexpectedly; see {logs}")
+                if first_track_s is None and alive.tracks_seen:
+                    first_track_s = alive.tracks_seen - t_start
+                stop.wait(0.2)
+    except KeyboardInterrupt:
+        print("\narena demo: interrupted, stopping (robots first)...", flush=True)
+        code = 130
+    except (RuntimeError, SessionError) as exc:
+        print(f"arena demo: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        codes = sup.stop_all(first=["bridge", "sim"])
+    summary = _finish(run_dir, args, first_track_s, codes)
+    if code == 0 and not summary.get("ok", False):
+        code = 1
+    return code
+
+
+class _AliveSet:
+    """Which services are alive (liveliness tokens), and when the first track arrived."""
+
+    def __init__(self, session):
+        import threading
+
+        self.keys: set[str] = set()
+        self.tracks_seen: float | None = None
+        self._lock = threading.Lock()
+        session.liveliness().declare_subscriber("arena/alive/**", self._on_alive, history=True)
+        session.declare_subscriber("arena/robots/*", self._on_track)
+
+    def _on_alive(self, sample) -> None:
+        import zenoh
+
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.keys.add(str(sample.key_expr))
+            else:
+                self.keys.discard(str(sample.key_expr))
+
+    def _on_track(self, sample) -> None:
+        if self.tracks_seen is None:
+            self.tracks_seen = time.monotonic()
+
+    def has(self, role: str, name: str):
+        key = f"arena/alive/{role}/{name}"
+
+        def check() -> bool:
+            with self._lock:
+                return key in self.keys
+        return check
+
+
+def _cell(n: int) -> float:
+    return 1.83 / max(1, math.ceil(math.sqrt(n)))
+
+
+def _layout(mission: str) -> str:
+    return mission
+
+
+def _mission(i: int, args):
+    """Mission of robot ``i``, sized to its cell (as the simulator lays robots out), with enough laps."""
+    from arena.messages import MissionCommand
+
+    m = _mission_for(i, args.mission)
+    cell = _cell(args.robots)
+    speed = 0.46 * args.power
+    if m == "circle":
+        r = min(0.30, cell / 2 - 0.09)
+        params = {"radius_m": round(r, 3), "laps": math.ceil(args.duration * speed / (2 * math.pi * r)) + 1}
+    else:
+        side = min(0.60, cell - 0.18)
+        params = {"side_m": round(side, 3), "laps": math.ceil(args.duration * speed / (4 * side)) + 1}
+    return MissionCommand(mission=m, params=params, power=args.power, control="paper", operator="arena demo")
+
+
+def _start_missions(session, robots: list[str], args) -> None:
+    """Send every robot its mission over Zenoh (as `arena bridge mission` does), to start together."""
+    from dataclasses import replace
+
+    from arena.keys import cmd_key
+    from arena.messages import CommandReply, MessageError, decode
+
+    start_ns = time.time_ns() + 1_000_000_000
+    for i, r in enumerate(robots):
+        cmd = replace(_mission(i, args), start_ns=start_ns)
+        replies = list(session.get(cmd_key(r, "mission"), payload=cmd.encode(), timeout=20.0))
+        ok = [x.ok for x in replies if x.ok is not None]
+        if not ok:
+            raise RuntimeError(f"no bridge answered the mission for {r}")
+        try:
+            reply = decode(bytes(ok[0].payload))
+        except MessageError as exc:
+            raise RuntimeError(f"the bridge's reply for {r} is not readable: {exc}") from None
+        if not isinstance(reply, CommandReply) or not reply.ok:
+            raise RuntimeError(f"the bridge refused the mission for {r}: {getattr(reply, 'error', reply)}")
+
+
+def _finish(run_dir: Path, args, first_track_s, codes) -> dict:
+    """Score the run, write the report, print where everything is."""
+    summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "first_track_s": first_track_s}
+    tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
+    if tracks.exists() and truth.exists():
+        from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
+
+        try:
+            scores = evaluate(read_tracks_csv(tracks), read_truth_csv(truth), gate_m=0.10)
+            summary["scores"] = scores.to_dict()
+            summary["ok"] = True
+        except Exception as exc:  # noqa: BLE001 - report what failed rather than crash at the end
+            summary["score_error"] = str(exc)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    s = summary.get("scores", {})
+    print("\n=== arena demo: results ===")
+    if s:
+        def f(key: str, fmt: str) -> str:
+            v = s.get(key)
+            return format(v, fmt) if isinstance(v, (int, float)) else "n/a"
+        print(f"precision {f('precision', '.3f')}  recall {f('recall', '.3f')}  MOTA {f('mota', '.3f')}  "
+              f"MAE {f('mae_cm', '.2f')} cm  heading MAE {f('heading_mae_deg', '.1f')}°  "
+              f"ID switches {s.get('id_switches')}")
+    else:
+        print(f"no score: {summary.get('score_error', 'tracks or truth missing')}")
+    if first_track_s is not None:
+        print(f"first track after {first_track_s:.1f} s")
+    print(f"run folder: {run_dir}  (tracks.csv, truth.csv, groundtruth.csv, telemetry/, events.raw, arena.mcap, logs/)")
+    print(f"watch it again: arena replay {run_dir} & arena view   (then open http://127.0.0.1:8080)")
+    return summary
