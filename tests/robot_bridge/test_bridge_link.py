@@ -44,10 +44,9 @@ def test_wheel_pid_holds_speed_on_the_emulator():
         state["link"] = link
         with link:
             assert link.wait_connected(3), link.last_error
-            time.sleep(2.0)
-            t_end = time.monotonic()
-        late = [s for s in state["speeds"] if s[0] > t_end - 0.8]
-    assert len(late) > 30
+            # 1.5 s of control at 100 Hz (counted in samples: a loaded machine slows everything)
+            assert wait_for(lambda: len(state["speeds"]) >= 150, 15.0)
+        late = state["speeds"][100:150]
     # median: the world thread is stepped in real time and a loaded machine makes single samples jumpy
     med_l = statistics.median(s[1] for s in late)
     med_r = statistics.median(s[2] for s in late)
