@@ -24,8 +24,14 @@ import threading
 import time
 
 
+_print_lock = threading.Lock()
+
+
 def emit(event: str, **fields) -> None:
-    print(json.dumps({"event": event, "t": time.time(), **fields}), flush=True)
+    """Print one JSON line (callbacks of several subscribers run on different threads)."""
+    line = json.dumps({"event": event, "t": time.time(), **fields})
+    with _print_lock:
+        print(line, flush=True)
 
 
 def main() -> int:
