@@ -81,6 +81,8 @@ def register_track(sub) -> None:
                    help="number of robots (caps confirmed tracks; default: the lab config's robots)")
     p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
     p.add_argument("--queue", type=int, default=8, help="live: newest slices kept when lagging (default 8)")
+    p.add_argument("--no-names", dest="names_from_groundtruth", action="store_false",
+                   help="live: do not name tracks after the robots of arena/groundtruth/* poses")
     p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
     add_zenoh_arguments(p)
     p.set_defaults(func=run_track)

@@ -273,6 +273,18 @@ class FleetTracker:
         self.tracks: list[_Track] = []
         self._next_id = 1
 
+    def set_robot_name(self, track_id: int, robot: str) -> bool:
+        """Give track ``track_id`` the robot name ``robot`` (taken from any other track).
+        Returns False when there is no such track."""
+        target = next((tr for tr in self.tracks if tr.id == track_id), None)
+        if target is None:
+            return False
+        for tr in self.tracks:
+            if tr.robot == robot and tr is not target:
+                tr.robot = None
+        target.robot = robot
+        return True
+
     def predictions(self, t_us: int) -> np.ndarray:
         """Predicted (x, y) of the confirmed and coasting tracks at ``t_us``, m: (k, 2)."""
         out = []

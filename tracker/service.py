@@ -6,7 +6,8 @@
   :class:`tracker.pipeline.Pipeline` in time order. A slice that does not decode, does not
   fit the calibrated sensor or is not newer than the last one is counted and skipped.
 - Every track update is published on ``arena/robots/<id>`` (the robot's name when known,
-  else the track number) as an :class:`arena.messages.Track`; ``get("arena/robots/*")``
+  else the track number; names come from ``arena/groundtruth/<robot>`` poses, e.g. the
+  webcam's markers, that keep falling on the same track) as an :class:`arena.messages.Track`; ``get("arena/robots/*")``
   answers with the current fleet; tracks can also be logged to CSV.
 - Presence and once-a-second status through :class:`arena.service.Service`: counters
   ``windows_in``, ``windows_bad``, ``windows_late``, ``windows_missed`` (sequence gaps),
@@ -24,8 +25,8 @@ import time
 import zenoh
 
 from arena.codec import CodecError, decode
-from arena.keys import events_key, robot_key
-from arena.messages import EventWindow, MessageError, Track
+from arena.keys import events_key, robot_key, validate_name
+from arena.messages import EventWindow, GroundTruthPose, MessageError, Track
 from tracker.objects import TrackedRobot
 from tracker.pipeline import Pipeline, TrackCsvWriter
 
@@ -49,9 +50,16 @@ class LiveTracker:
     #: looping), not a late slice: the pipeline starts afresh
     RESTART_US = 1_000_000
 
+    #: a ground-truth pose names the nearest track within this distance, m ...
+    NAME_GATE_M = 0.10
+    #: ... once it has done so this many times in a row
+    NAME_VOTES = 5
+
     def __init__(self, pipeline: Pipeline, camera: str, svc=None, make_pipeline=None) -> None:
         self.pipeline = pipeline
         self.make_pipeline = make_pipeline
+        self._votes: dict[str, tuple[int, int]] = {}
+        self._pending_names: dict[int, str] = {}
         self.camera = camera
         self.svc = svc
         self.last_seq: int | None = None
@@ -71,8 +79,38 @@ class LiveTracker:
         else:
             log.warning("%s", msg)
 
+    def observe_groundtruth(self, robot: str, x: float, y: float) -> None:
+        """A ground-truth pose of ``robot`` (arena m, e.g. from the webcam's markers): the
+        nearest current track within ``NAME_GATE_M``, the same one ``NAME_VOTES`` times in a
+        row, gets the robot's name (published on ``arena/robots/<name>`` from then on).
+        Thread-safe; applied by the worker at its next window."""
+        try:
+            validate_name(robot, "robot name")
+        except ValueError:
+            return
+        with self.lock:
+            best, best_d = None, self.NAME_GATE_M
+            for msg in self.fleet.values():
+                d = ((msg.x - x) ** 2 + (msg.y - y) ** 2) ** 0.5
+                if d <= best_d and msg.state != "tentative":
+                    best, best_d = msg.track_id, d
+            if best is None:
+                self._votes.pop(robot, None)
+                return
+            tid, n = self._votes.get(robot, (best, 0))
+            n = n + 1 if tid == best else 1
+            self._votes[robot] = (best, n)
+            if n >= self.NAME_VOTES and not any(m.track_id == best and m.robot == robot for m in self.fleet.values()):
+                self._pending_names[best] = robot
+
     def handle(self, payload: bytes, now_ns: int) -> list[tuple[str, Track, TrackedRobot]]:
         """Process one event-window payload; returns ``(key, message, track)`` to publish."""
+        with self.lock:
+            pending, self._pending_names = self._pending_names, {}
+        namer = getattr(self.pipeline.tracker, "set_robot_name", None)
+        if namer is not None:
+            for tid, robot in pending.items():
+                namer(tid, robot)
         try:
             win = EventWindow.decode(payload)
             if win.camera != self.camera:
@@ -180,7 +218,17 @@ def run_live(args) -> int:
                     if zenoh.KeyExpr(key).intersects(query.key_expr):
                         query.reply(key, msg.encode())
 
+            def on_groundtruth(sample) -> None:
+                try:
+                    gt = GroundTruthPose.decode(sample.payload.to_bytes())
+                except MessageError:
+                    svc.count("groundtruth_bad")
+                    return
+                live.observe_groundtruth(gt.robot, gt.x, gt.y)
+
             queryable = session.declare_queryable("arena/robots/*", on_query)
+            gt_sub = (session.declare_subscriber("arena/groundtruth/*", on_groundtruth)
+                      if args.names_from_groundtruth else None)
             sub = session.declare_subscriber(events_key(args.camera), zenoh.handlers.RingChannel(max(1, args.queue)))
             log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(args.camera),
                      args.tracker, args.detector)
@@ -210,6 +258,8 @@ def run_live(args) -> int:
             finally:
                 sub.undeclare()
                 queryable.undeclare()
+                if gt_sub is not None:
+                    gt_sub.undeclare()
                 for pub in publishers.values():
                     pub.undeclare()
     except SessionError as exc:

@@ -53,3 +53,24 @@ def test_bad_late_and_restarted_windows_are_skipped_and_tracking_goes_on():
     for k in range(10):
         live.handle(win(ev2, k, seq=100 + k).encode(), now_ns=6)
     assert live.pipeline.last_t_us == 100_000
+
+
+def test_tracks_take_the_names_of_ground_truth_poses_that_keep_falling_on_them():
+    rng = np.random.default_rng(8)
+    ev = window(rng, [line_pose(150, 200, 100.0, 0.0), line_pose(450, 300, -100.0, 0.0)], 0, 500_000)
+    live = LiveTracker(make(), "c0")
+    for k in range(20):
+        out = live.handle(win(ev, k).encode(), now_ns=1)
+    assert {key for key, _, _ in out} == {"arena/robots/1", "arena/robots/2"}
+    by_id = {m.track_id: m for _, m, _ in out}
+    for k in range(20, 30):
+        m = by_id[2]
+        live.observe_groundtruth("zumo-b", m.x + 0.02, m.y)      # near track 2, every time
+        live.observe_groundtruth("bad name!", m.x, m.y)         # not a valid key name: ignored
+        live.observe_groundtruth("far", m.x + 0.5, m.y)         # near no track: ignored
+        out = live.handle(win(ev, k).encode(), now_ns=1)
+        by_id = {m.track_id: m for _, m, _ in out}
+    keys = {key for key, _, _ in out}
+    assert keys == {"arena/robots/1", "arena/robots/zumo-b"}
+    assert {m.robot for _, m, _ in out} == {None, "zumo-b"}
+    assert {tr.robot for _, _, tr in out} == {None, "zumo-b"}
