@@ -41,7 +41,9 @@ class FleetConfig:
         vel_sigma_mps: floor of the detection velocity noise, m/s.
         yaw_accel_radps2: heading process noise, rad/s^2.
         min_speed_mps: speed above which the motion heading is trusted, m/s.
-        shape_sigma_deg: noise of the shape orientation, degrees.
+        shape_sigma_deg: noise of the shape orientation, degrees (each track also learns how
+            far its robot's shape disagrees with the motion heading while it drives, and
+            ignores the shape when that disagreement is large: a round shell).
         yaw_reset_updates: consecutive motion headings more than 45 degrees off the filter
             that restart it on the motion heading.
         confirm_hits: detections needed to confirm a track.
@@ -133,6 +135,8 @@ class _Track:
         self.yaw_rate = 0.0
         self.py = [1.0, 0.0, 1.0]
         self._disagree = 0
+        # variance of the shape orientation about the motion heading, rad^2 (learnt)
+        self._shape_var = math.radians(cfg.shape_sigma_deg) ** 2
         self.state = TENTATIVE
         self.age = 0
         self.hits = 1
@@ -228,9 +232,18 @@ class _Track:
                 self._yaw_measure(ob.yaw, lag, sy)
         if math.isfinite(ob.shape_yaw) and not math.isnan(self.yaw):
             period = 2.0 * math.pi / max(1, ob.shape_order)
+            if math.isfinite(ob.yaw) and speed >= 2.0 * self.cfg.min_speed_mps:
+                # learn how well this robot's shape tells its heading: its disagreement with
+                # a clear motion heading (a round or odd-shaped shell is ignored)
+                r = (ob.shape_yaw - ob.yaw + period / 2.0) % period - period / 2.0
+                # clipped (a turn's mixed window gives outliers), so it grows only when the
+                # disagreement persists
+                self._shape_var += 0.05 * (min(r * r, 9.0 * self._shape_var) - self._shape_var)
             pred = self.yaw - self.yaw_rate * lag
             innov = (ob.shape_yaw - pred + period / 2.0) % period - period / 2.0
-            if abs(innov) < period / 3.0:
+            # a shape that keeps disagreeing with the motion (rms > period / 8: 11 degrees for
+            # a square) is not used at all
+            if abs(innov) < period / 3.0 and self._shape_var < (period / 8.0) ** 2:
                 self._yaw_measure(pred + innov, lag, math.radians(self.cfg.shape_sigma_deg) ** 2)
 
     def _yaw_reset(self, yaw: float) -> None:
