@@ -132,3 +132,19 @@ def test_touching_robots_are_split_by_the_predictions():
     us = sorted(d.u for d in split)
     assert us[0] == pytest.approx(300, abs=3) and us[1] == pytest.approx(326, abs=3)
     assert all(d.v == pytest.approx(210, abs=3) for d in split)   # position at the window's end
+
+
+def test_a_shape_that_keeps_disagreeing_with_the_motion_is_ignored():
+    rng = np.random.default_rng(9)
+    ft = FleetTracker()
+    last = None
+    for k in range(150):   # driving along +x; the "shape" orientation is noise (a round shell)
+        o = ob(0.3 + 0.004 * k, 0.5, (k + 1) * DT, 0.4, 0.0)
+        o.shape_yaw, o.shape_order = rng.uniform(-np.pi, np.pi), 4
+        last = ft.update([o], (k + 1) * DT)
+    assert last[0].yaw == pytest.approx(0.0, abs=math.radians(3))
+    for k in range(150, 200):   # standing still: only the (noise) shape, which must not turn it
+        o = ob(0.3 + 0.004 * 149, 0.5, (k + 1) * DT, 0.0, 0.0)
+        o.shape_yaw, o.shape_order = rng.uniform(-np.pi, np.pi), 4
+        last = ft.update([o], (k + 1) * DT)
+    assert last[0].yaw == pytest.approx(0.0, abs=math.radians(3))
