@@ -232,13 +232,18 @@ class _Track:
                 self._yaw_measure(ob.yaw, lag, sy)
         if math.isfinite(ob.shape_yaw) and not math.isnan(self.yaw):
             period = 2.0 * math.pi / max(1, ob.shape_order)
-            if math.isfinite(ob.yaw) and speed >= 2.0 * self.cfg.min_speed_mps:
+            if math.isfinite(ob.yaw) and speed >= 2.0 * self.cfg.min_speed_mps and abs(self.yaw_rate) < 0.5:
                 # learn how well this robot's shape tells its heading: its disagreement with
-                # a clear motion heading (a round or odd-shaped shell is ignored)
+                # a clear motion heading while driving about straight (a round or odd-shaped
+                # shell is then ignored)
                 r = (ob.shape_yaw - ob.yaw + period / 2.0) % period - period / 2.0
-                # clipped (a turn's mixed window gives outliers), so it grows only when the
-                # disagreement persists
-                self._shape_var += 0.05 * (min(r * r, 9.0 * self._shape_var) - self._shape_var)
+                # minus the motion heading's own noise; clipped (a turn's mixed window gives
+                # outliers), so it grows only when the disagreement persists
+                var_motion = math.radians(4.0) ** 2
+                if math.isfinite(ob.speed_sigma) and speed > 0:
+                    var_motion += (ob.speed_sigma / speed) ** 2
+                r2 = max(r * r - var_motion, 0.0)
+                self._shape_var += 0.05 * (min(r2, 9.0 * self._shape_var) - self._shape_var)
             pred = self.yaw - self.yaw_rate * lag
             innov = (ob.shape_yaw - pred + period / 2.0) % period - period / 2.0
             # a shape that keeps disagreeing with the motion (rms > period / 8: 11 degrees for
