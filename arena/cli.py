@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import math
+import signal
 import sys
 import threading
 import time
@@ -292,8 +293,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:
+        # SIGTERM (a launcher, systemd) is a normal stop: exit 0; Ctrl-C keeps the shell's 130
+        return 0 if exc.args == (f"signal {int(signal.SIGTERM)}",) else 130
     except SessionError as exc:
         print(f"arena {args.command}: {exc}", file=sys.stderr)
         return 2

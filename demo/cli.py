@@ -172,7 +172,8 @@ def run(args) -> int:
         code = 1
     finally:
         codes = sup.stop_all(first=["bridge", "sim"])
-    summary = _finish(run_dir, args, first_track_s, codes)
+    pids = {name: p.popen.pid for name, p in sup.procs.items()}
+    summary = _finish(run_dir, args, first_track_s, codes, pids)
     if code == 0 and not summary.get("ok", False):
         code = 1
     return code
@@ -258,9 +259,9 @@ def _start_missions(session, robots: list[str], args) -> None:
             raise RuntimeError(f"the bridge refused the mission for {r}: {getattr(reply, 'error', reply)}")
 
 
-def _finish(run_dir: Path, args, first_track_s, codes) -> dict:
+def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     """Score the run, write the report, print where everything is."""
-    summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "first_track_s": first_track_s}
+    summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "pids": pids, "first_track_s": first_track_s}
     tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
     if tracks.exists() and truth.exists():
         from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
