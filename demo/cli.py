@@ -44,6 +44,9 @@ def register(subparsers) -> None:
     p.add_argument("--duration", type=float, default=30.0, help="seconds of missions (default 30)")
     p.add_argument("--seed", type=int, default=0, help="simulator seed (default 0)")
     p.add_argument("--tracker", choices=("fleet", "idtrack"), default="fleet", help="tracker (default fleet)")
+    p.add_argument("--control", choices=("closed", "paper"), default="closed",
+                   help="closed: robots follow their path using their own tracks (default); paper: the "
+                        "paper's encoder-only PID, whose shapes drift by ~10 cm a lap")
     p.add_argument("--out", default="runs", help="parent folder of the run folder (default ./runs)")
     p.add_argument("--view", action="store_true", help="also start the web viewer (arena view)")
     p.add_argument("--view-port", type=int, default=8080, help="viewer port (default 8080)")
@@ -221,7 +224,7 @@ def _layout(mission: str) -> str:
     return mission
 
 
-def _mission(i: int, args):
+def _mission(i: int, args, start_pose: tuple[float, float, float]):
     """Mission of robot ``i``, sized to its cell (as the simulator lays robots out), with enough laps."""
     from arena.messages import MissionCommand
 
@@ -234,7 +237,8 @@ def _mission(i: int, args):
     else:
         side = min(0.60, cell - 0.18)
         params = {"side_m": round(side, 3), "laps": math.ceil(args.duration * speed / (4 * side)) + 1}
-    return MissionCommand(mission=m, params=params, power=args.power, control="paper", operator="arena demo")
+    params["start_pose"] = [round(v, 5) for v in start_pose]  # the simulator's layout: closed loop starts at once
+    return MissionCommand(mission=m, params=params, power=args.power, control=args.control, operator="arena demo")
 
 
 def _start_missions(session, robots: list[str], args) -> None:
@@ -244,9 +248,12 @@ def _start_missions(session, robots: list[str], args) -> None:
     from arena.keys import cmd_key
     from arena.messages import CommandReply, MessageError, decode
 
+    from simulator.cli import layout_poses
+
+    poses = layout_poses(_layout(args.mission), len(robots), 1.83)
     start_ns = time.time_ns() + 1_000_000_000
     for i, r in enumerate(robots):
-        cmd = replace(_mission(i, args), start_ns=start_ns)
+        cmd = replace(_mission(i, args, poses[i]), start_ns=start_ns)
         replies = list(session.get(cmd_key(r, "mission"), payload=cmd.encode(), timeout=20.0))
         ok = [x.ok for x in replies if x.ok is not None]
         if not ok:

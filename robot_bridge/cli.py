@@ -108,6 +108,9 @@ def register(subparsers) -> None:
 def _client_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the bridge's reply")
     p.add_argument("--operator", default=None, help="who sends the command (recorded in the mission log)")
+    p.add_argument("--start-pose", metavar="X,Y,YAW_DEG", default=None,
+                   help="where the robot stands (arena m, degrees): lets --control closed start before "
+                        "the camera has seen the robot move")
     add_zenoh_arguments(p)
 
 
@@ -255,6 +258,16 @@ def run_mission(args) -> int:
     if args.speed is not None and not 0 < args.speed <= 2:
         print(f"arena bridge mission: --speed is m/s in (0, 2], got {args.speed}", file=sys.stderr)
         return 2
+    if args.start_pose is not None:
+        try:
+            x, y, yaw_deg = (float(c) for c in args.start_pose.split(","))
+        except ValueError:
+            print(f"arena bridge mission: --start-pose expects X,Y,YAW_DEG, got {args.start_pose!r}", file=sys.stderr)
+            return 2
+        if not all(math.isfinite(v) for v in (x, y, yaw_deg)):
+            print(f"arena bridge mission: --start-pose {args.start_pose!r} is not finite", file=sys.stderr)
+            return 2
+        params["start_pose"] = [x, y, math.radians(yaw_deg)]
     start_ns = time.time_ns() + int(args.start_in * 1e9) if args.start_in else None
     cmd = MissionCommand(mission=args.pattern, params=params, power=power, speed_mps=args.speed,
                          control=args.control, start_ns=start_ns, operator=args.operator)

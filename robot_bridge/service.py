@@ -21,6 +21,7 @@ geofence, and when the battery is low.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from dataclasses import dataclass, field
@@ -147,17 +148,28 @@ class RobotHandle:
             # started will do: the fused pose has been carried on by odometry (which does not
             # drift while the robot stands).
             fresh = self.estimator.last_track_t is not None
-            if cmd.control == "closed" and not fresh:
+            params = dict(cmd.params)
+            known_start = params.pop("start_pose", None)
+            if known_start is not None:
+                # the operator (or the demo) knows where the robot stands: x m, y m, yaw rad, arena frame
+                if (not isinstance(known_start, list) or len(known_start) != 3
+                        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                   for v in known_start)):
+                    raise CommandError(f"bad parameter: start_pose must be [x_m, y_m, yaw_rad], got {known_start!r}")
+                if not fresh:
+                    self.estimator.set_pose(tuple(float(v) for v in known_start))
+            if cmd.control == "closed" and not fresh and known_start is None:
                 raise CommandError(f"bad parameter: control=closed needs a track of {self.name} on {ALL_ROBOTS} "
                                    "and none came yet (a standing robot gives no events: drive it a little, "
-                                   "e.g. a short paper mission) or use control=paper")
+                                   "e.g. a short paper mission), give params start_pose=[x, y, yaw], "
+                                   "or use control=paper")
             try:
                 speed = mission_speed(cmd.power, cmd.speed_mps, self.geometry.max_speed_mps)
                 start = self.estimator.pose()
-                mission = build_mission(cmd.mission, dict(cmd.params), start, speed)
+                mission = build_mission(cmd.mission, params, start, speed)
             except MissionError as exc:
                 raise CommandError(f"bad parameter: {exc}") from None
-            if fresh:
+            if fresh or known_start is not None:
                 self._check_inside(mission)
             mission_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{cmd.mission}"
             self.runner = MissionRunner(mission, self.geometry, mode=cmd.control, estimator=self.estimator,
@@ -173,7 +185,7 @@ class RobotHandle:
                           "speed_mps": speed, "start_pose": list(start), "start_ns": cmd.start_ns,
                           "operator": cmd.operator, "url": self.link.url,
                           "geometry": vars(self.geometry),
-                          "pose_source_at_start": "track" if fresh else "odometry"})
+                          "pose_source_at_start": "track" if fresh else ("given" if known_start else "odometry")})
             log.info("robot %s: mission %s started (%s, %.2f m/s)", self.name, mission_id, cmd.control, speed)
             return {"mission_id": mission_id, "speed_mps": speed, "length_m": round(mission.length_m, 4),
                     "phases": len(mission.segments), "start_pose": [round(v, 4) for v in start]}
