@@ -135,7 +135,8 @@ def run(args) -> int:
                                   ready_check=alive.has("edge", "cam0"), ready_timeout_s=90))
             specs.append(ProcSpec("tracker", python_cmd("track", "--camera", "cam0", "--calibration", str(calib),
                                                      "--tracker", args.tracker, "--fleet-size", str(args.robots),
-                                                     "--name", "cam0", "--tracks-out", str(run_dir / "tracks.csv"), *z),
+                                                     "--name", "cam0", "--tracks-out", str(run_dir / "tracks.csv"),
+                                                     "--state", str(run_dir / "tracker-state.json"), *z),
                                   ready_check=alive.has("tracker", "cam0"), ready_timeout_s=90))
             web = f"http://127.0.0.1:{web_port}"
             specs.append(ProcSpec("groundtruth", python_cmd("groundtruth", "--video", f"{web}/stream.mjpg",

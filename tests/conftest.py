@@ -6,12 +6,17 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+# services started by tests keep their state files (the tracker's fleet snapshot) out of
+# ~/.local/state/arena: per test (fixture below), and for environments copied at import
+os.environ["ARENA_STATE_DIR"] = tempfile.mkdtemp(prefix="arena-test-state-")
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 
@@ -41,6 +46,13 @@ def wait_for_line(proc: subprocess.Popen, needle: str, timeout: float = 20.0) ->
         if needle in line:
             return line
     raise AssertionError(f"{needle!r} not printed within {timeout}s; got: {''.join(seen)!r}")
+
+
+@pytest.fixture(autouse=True)
+def _isolated_state_dir(tmp_path_factory, monkeypatch):
+    """Services' state files (the tracker's fleet snapshot) go to a fresh folder per test, not
+    to ~/.local/state/arena, so no test restores another's tracks."""
+    monkeypatch.setenv("ARENA_STATE_DIR", str(tmp_path_factory.mktemp("state")))
 
 
 class Router:

@@ -83,6 +83,14 @@ def register_track(sub) -> None:
     p.add_argument("--queue", type=int, default=8, help="live: newest slices kept when lagging (default 8)")
     p.add_argument("--no-names", dest="names_from_groundtruth", action="store_false",
                    help="live: do not name tracks after the robots of arena/groundtruth/* poses")
+    p.add_argument("--state", metavar="FILE", default=None,
+                   help="live: fleet state file, written every second and read at start so that track IDs "
+                        "survive a restart (default: tracker-NAME.json in $ARENA_STATE_DIR, systemd's "
+                        "$STATE_DIRECTORY or ~/.local/state/arena)")
+    p.add_argument("--no-state", dest="use_state", action="store_false",
+                   help="live: neither read nor write the state file (every start is afresh)")
+    p.add_argument("--state-max-age", type=float, default=600.0, metavar="S",
+                   help="live: a state file older than this is not restored, s (default 600)")
     p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
     add_zenoh_arguments(p)
     p.set_defaults(func=run_track)

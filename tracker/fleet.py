@@ -14,6 +14,12 @@ Arena frame throughout: metres, m/s, yaw in rad counter-clockwise from +x, times
   stays where it stopped, with its ID, for as long as needed (robots do not vanish). A
   detection closer than one chassis to an existing track never starts a new track (two
   robots cannot overlap), and ``fleet_size`` caps the confirmed tracks.
+- Restart: :meth:`FleetTracker.snapshot` gives the fleet as a small JSON-able dict and
+  :meth:`FleetTracker.restore` brings it back in a new tracker (the live service writes it to
+  a state file every second). Restored tracks keep their IDs and robot names and wait, at
+  rest, where they were last seen: a robot that stood still is matched there when it moves;
+  one that drove on during the restart is found again when a new track confirms within
+  ``reclaim_m`` of it (optimal assignment, nearest first) and takes that track over.
 """
 
 from __future__ import annotations
@@ -52,6 +58,8 @@ class FleetConfig:
         fleet_size: most confirmed tracks (None: unlimited).
         lost_s: a coasting track unseen this long may be re-acquired anywhere when the fleet
             is full and a new robot-sized object keeps being detected elsewhere, s.
+        reclaim_m: a restored track not seen since the restore is taken over by a new track
+            that confirms within this distance of it, m (the robot drove on meanwhile).
     """
 
     chassis_m: float = 0.10
@@ -68,10 +76,11 @@ class FleetConfig:
     stop_tau_s: float = 0.05
     fleet_size: int | None = None
     lost_s: float = 2.0
+    reclaim_m: float = 1.0
 
     def validate(self) -> None:
         for name in ("chassis_m", "gate_m", "accel_mps2", "pos_sigma_m", "vel_sigma_mps",
-                     "yaw_accel_radps2", "stop_tau_s", "lost_s"):
+                     "yaw_accel_radps2", "stop_tau_s", "lost_s", "reclaim_m"):
             val = getattr(self, name)
             if not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"fleet tracker {name} must be a positive number, got {val!r}")
@@ -144,6 +153,8 @@ class _Track:
         self.last_seen_us = int(ob.t_us)
         self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
         self.robot: str | None = None
+        #: restored from a snapshot and not seen since
+        self.restored = False
         self._update_yaw(ob)
 
     @property
@@ -198,6 +209,7 @@ class _Track:
         self.misses = 0
         self.last_seen_us = int(ob.t_us)
         self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
+        self.restored = False
         if self.state == TENTATIVE and self.hits >= cfg.confirm_hits:
             self.state = CONFIRMED
         elif self.state == COASTING:
@@ -303,6 +315,58 @@ class FleetTracker:
         target.robot = robot
         return True
 
+    #: version of :meth:`snapshot`'s layout
+    SNAPSHOT_VERSION = 1
+
+    def snapshot(self) -> dict:
+        """The fleet (confirmed and coasting tracks) as a small JSON-able dict, for
+        :meth:`restore` after a restart. Arena frame (m, m/s, rad), times in µs."""
+        def num(x: float) -> float | None:
+            return float(x) if math.isfinite(x) else None
+
+        tracks = [{"id": tr.id, "robot": tr.robot, "x": tr.ax.p, "y": tr.ay.p, "vx": tr.ax.v, "vy": tr.ay.v,
+                   "yaw": num(tr.yaw), "u": num(tr.u), "v": num(tr.v), "t_us": tr.t_us,
+                   "last_seen_us": tr.last_seen_us, "hits": tr.hits}
+                  for tr in self.tracks if tr.state != TENTATIVE]
+        return {"v": self.SNAPSHOT_VERSION, "next_id": self._next_id, "tracks": tracks}
+
+    def restore(self, snap: dict) -> list[int]:
+        """Bring back the tracks of :meth:`snapshot` (replacing any current ones); returns
+        their IDs. They coast at rest where they were last seen, with their IDs, names and
+        headings, until a detection matches them (see the module's notes on restarts).
+        Raises ValueError for a snapshot this version cannot read."""
+        if not isinstance(snap, dict) or snap.get("v") != self.SNAPSHOT_VERSION:
+            raise ValueError(f"tracker snapshot version {snap.get('v') if isinstance(snap, dict) else None!r} "
+                             f"is not {self.SNAPSHOT_VERSION}")
+        tracks = []
+        try:
+            for rec in snap["tracks"]:
+                x, y = float(rec["x"]), float(rec["y"])
+                if not (math.isfinite(x) and math.isfinite(y)):
+                    raise ValueError(f"track {rec.get('id')!r} has no finite position")
+                t = int(rec["t_us"])
+                tr = _Track(int(rec["id"]), Observation(x=x, y=y, t_us=t), self.config)
+                tr.ax.v = tr.ay.v = 0.0  # at rest until seen: robots do not vanish
+                tr.ax.vv = tr.ay.vv = 0.3 ** 2
+                yaw = rec.get("yaw")
+                if yaw is not None and math.isfinite(float(yaw)):
+                    tr._yaw_reset(float(yaw))
+                tr.last_seen_us = int(rec.get("last_seen_us", t))
+                tr.hits = max(int(rec.get("hits", self.config.confirm_hits)), self.config.confirm_hits)
+                tr.robot = rec.get("robot") or None
+                tr.u = float(rec["u"]) if rec.get("u") is not None else math.nan
+                tr.v = float(rec["v"]) if rec.get("v") is not None else math.nan
+                tr.state, tr.misses, tr.n_events, tr.restored = COASTING, 1, 0, True
+                tracks.append(tr)
+            next_id = max([int(snap.get("next_id", 1))] + [tr.id + 1 for tr in tracks])
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"tracker snapshot is malformed: {exc!r}") from None
+        if len({tr.id for tr in tracks}) != len(tracks):
+            raise ValueError("tracker snapshot has duplicate track IDs")
+        self.tracks = sorted(tracks, key=lambda tr: tr.id)
+        self._next_id = next_id
+        return [tr.id for tr in self.tracks]
+
     def predictions(self, t_us: int) -> np.ndarray:
         """Predicted (x, y) of the confirmed and coasting tracks at ``t_us``, m: (k, 2)."""
         out = []
@@ -316,6 +380,9 @@ class FleetTracker:
         """Advance to ``t_us`` (µs), assign the observations, return the current tracks."""
         cfg = self.config
         for tr in self.tracks:
+            if tr.restored and tr.t_us > t_us:
+                # restored from a camera clock that has since restarted: rebase to now
+                tr.t_us = tr.last_seen_us = int(t_us)
             tr.predict(t_us)
             tr.age += 1
         # confirmed tracks first, so that they win over tentative ones
@@ -352,6 +419,7 @@ class FleetTracker:
         # drop tentative tracks that keep missing
         self.tracks = [tr for tr in tracks if not (tr.state == TENTATIVE and tr.misses >= cfg.tentative_max_misses)]
         self._births(observations, sorted(unmatched_obs), t_us)
+        self._reclaim()
         self._fleet_cap(t_us)
         self.tracks.sort(key=lambda tr: tr.id)
         return [tr.report() for tr in self.tracks if self.report_tentative or tr.state != TENTATIVE]
@@ -366,6 +434,32 @@ class FleetTracker:
             self.tracks.append(_Track(self._next_id, ob, cfg))
             self._next_id += 1
 
+    def _reclaim(self) -> None:
+        """Restored tracks not seen since the restore are taken over (IDs and names kept) by
+        tracks that have just confirmed within ``reclaim_m``: optimal assignment."""
+        waiting = [tr for tr in self.tracks if tr.restored]
+        if not waiting:
+            return
+        fresh = [tr for tr in self.tracks if not tr.restored and tr.state == CONFIRMED
+                 and tr.hits == self.config.confirm_hits and tr.robot is None]
+        if not fresh:
+            return
+        cost = np.array([[math.hypot(n.ax.p - o.ax.p, n.ay.p - o.ay.p) for o in waiting] for n in fresh])
+        cost[cost > self.config.reclaim_m] = 1e6
+        for r, c in zip(*linear_sum_assignment(cost)):
+            if cost[r, c] >= 1e6:
+                continue
+            self._take_over(waiting[c], fresh[r])
+            self.tracks.remove(fresh[r])
+
+    @staticmethod
+    def _take_over(old: _Track, new: _Track) -> None:
+        """``old`` (keeping its ID and name) becomes the robot that ``new`` is tracking."""
+        old.ax, old.ay, old.yaw, old.yaw_rate, old.py = new.ax, new.ay, new.yaw, new.yaw_rate, new.py
+        old.state, old.misses, old.last_seen_us, old.t_us = CONFIRMED, 0, new.last_seen_us, new.t_us
+        old.u, old.v, old.n_events = new.u, new.v, new.n_events
+        old._shape_var, old._disagree, old.restored = new._shape_var, new._disagree, False
+
     def _fleet_cap(self, t_us: int) -> None:
         """With a known fleet size, confirmed tracks beyond it (the newest) are not robots,
         unless an older track has been lost for ``lost_s``: that one (keeping its ID) takes
@@ -379,7 +473,5 @@ class FleetTracker:
                     and (t_us - c.last_seen_us) * 1e-6 >= self.config.lost_s]
             if lost:
                 old = min(lost, key=lambda c: c.last_seen_us)
-                old.ax, old.ay, old.yaw, old.yaw_rate, old.py = tr.ax, tr.ay, tr.yaw, tr.yaw_rate, tr.py
-                old.state, old.misses, old.last_seen_us = CONFIRMED, 0, tr.last_seen_us
-                old.u, old.v, old.n_events = tr.u, tr.v, tr.n_events
+                self._take_over(old, tr)
             self.tracks.remove(tr)

@@ -14,13 +14,21 @@
   ``tracks_out``, ``stream_restarts`` (the camera's clock jumped back by > 1 s: a replay
   looping; tracking starts afresh); gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
   track publish, host clocks).
+- Restarts: the fleet tracker's state (:meth:`tracker.fleet.FleetTracker.snapshot`: IDs,
+  names, last poses) is written atomically to a small JSON state file every second and at
+  exit, and restored at start (unless older than ``--state-max-age``), so track IDs come back
+  after a crash, a SIGKILL or an upgrade. A state file that cannot be read is logged and set
+  aside (``.bad``); the tracker then starts afresh.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import os
 import threading
 import time
+from pathlib import Path
 
 import zenoh
 
@@ -32,7 +40,46 @@ from tracker.pipeline import Pipeline, TrackCsvWriter
 
 log = logging.getLogger("tracker")
 
-__all__ = ["LiveTracker", "run_live"]
+__all__ = ["LiveTracker", "run_live", "default_state_path", "save_state", "load_state"]
+
+
+def default_state_path(name: str) -> Path:
+    """``tracker-<name>.json`` in ``$ARENA_STATE_DIR``, systemd's ``$STATE_DIRECTORY`` (the
+    unit's ``StateDirectory=``), ``$XDG_STATE_HOME/arena`` or ``~/.local/state/arena``."""
+    base = os.environ.get("ARENA_STATE_DIR") or os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    if not base:
+        base = str(Path(os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state") / "arena")
+    return Path(base) / f"{name}.json"
+
+
+def save_state(path: Path, state: dict) -> None:
+    """Write ``state`` as JSON atomically (a reader or a crash never sees half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as fh:
+        json.dump(state, fh, separators=(",", ":"))
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def load_state(path: Path, camera: str, max_age_s: float, now_s: float | None = None) -> tuple[dict | None, str]:
+    """Read a state file written by :func:`save_state` for ``camera``. Returns ``(fleet
+    snapshot or None, why)``; raises ValueError for a file that is not a tracker state."""
+    if not path.exists():
+        return None, f"no state file {path}: starting afresh"
+    try:
+        state = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"state file {path} is not JSON ({exc})") from None
+    if not isinstance(state, dict) or not isinstance(state.get("fleet"), dict):
+        raise ValueError(f"state file {path} has no 'fleet' table: not a tracker state")
+    if state.get("camera") != camera:
+        return None, f"state file {path} is camera {state.get('camera')!r}'s, not {camera!r}: starting afresh"
+    age = (time.time() if now_s is None else now_s) - float(state.get("written_s", 0.0))
+    if not age <= max_age_s:
+        return None, f"state file {path} is {age:.0f} s old (> {max_age_s:g} s): starting afresh"
+    return state["fleet"], f"{age:.1f} s old"
 
 
 def _opt(x: float) -> float | None:
@@ -67,6 +114,20 @@ class LiveTracker:
         self.lock = threading.Lock()
         w, h = pipeline.calibration.image_size
         self.size = (w, h)
+
+    def snapshot(self) -> dict | None:
+        """The state to write to the state file (None: this tracker keeps none)."""
+        snap = getattr(self.pipeline.tracker, "snapshot", None)
+        if snap is None:
+            return None
+        return {"camera": self.camera, "written_s": time.time(), "fleet": snap()}
+
+    def restore(self, fleet: dict) -> list[int]:
+        """Bring back a fleet snapshot; returns the restored track IDs (ValueError if unreadable)."""
+        restore = getattr(self.pipeline.tracker, "restore", None)
+        if restore is None:
+            raise ValueError("the idtrack tracker keeps no state")
+        return restore(fleet)
 
     def _count(self, key: str, n: int = 1) -> None:
         if self.svc is not None:
@@ -202,6 +263,9 @@ def run_live(args) -> int:
     except CalibrationError as exc:
         raise SystemExit(f"arena track: {exc}") from None
     name = args.name or f"tracker-{args.camera}"
+    state_path = None
+    if getattr(args, "use_state", True) and args.tracker == "fleet":
+        state_path = Path(args.state) if args.state else default_state_path(name)
     stop = stop_on_signals()
     csv_file = open(args.tracks_out, "w", newline="") if args.tracks_out else None
     writer = TrackCsvWriter(csv_file) if csv_file else None
@@ -209,6 +273,9 @@ def run_live(args) -> int:
     try:
         with open_session(args, lab=lab, wait_s=None) as session, Service(session, "tracker", name) as svc:
             live = LiveTracker(pipe, args.camera, svc, make_pipeline)
+            if state_path is not None:
+                _restore_state(live, state_path, args.state_max_age, svc)
+            next_save = time.monotonic() + 1.0
             publishers: dict[str, zenoh.Publisher] = {}
 
             def on_query(query: zenoh.Query) -> None:
@@ -234,6 +301,9 @@ def run_live(args) -> int:
                      args.tracker, args.detector)
             try:
                 while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                    if state_path is not None and time.monotonic() >= next_save:
+                        next_save = time.monotonic() + 1.0
+                        _save_state(live, state_path, svc)
                     sample = sub.try_recv()
                     if sample is None:
                         time.sleep(0.001)
@@ -256,6 +326,8 @@ def run_live(args) -> int:
             except KeyboardInterrupt:
                 pass
             finally:
+                if state_path is not None:
+                    _save_state(live, state_path, svc)
                 sub.undeclare()
                 queryable.undeclare()
                 if gt_sub is not None:
@@ -268,3 +340,33 @@ def run_live(args) -> int:
         if csv_file is not None:
             csv_file.close()
     return 0
+
+
+def _restore_state(live: LiveTracker, path: Path, max_age_s: float, svc) -> None:
+    try:
+        fleet, why = load_state(path, live.camera, max_age_s)
+        if fleet is None:
+            log.info("%s", why)
+            return
+        ids = live.restore(fleet)
+    except ValueError as exc:
+        bad = path.with_name(path.name + ".bad")
+        try:
+            os.replace(path, bad)
+        except OSError:
+            pass
+        svc.error(f"{exc}; set aside as {bad.name}, starting afresh")
+        return
+    svc.count("state_restored")
+    log.info("restored %d track(s) %s from %s (%s)", len(ids), ids, path, why)
+
+
+def _save_state(live: LiveTracker, path: Path, svc) -> None:
+    state = live.snapshot()
+    if state is None:
+        return
+    try:
+        save_state(path, state)
+    except OSError as exc:
+        svc.count("state_write_errors")
+        log.warning("cannot write the state file %s: %s", path, exc)

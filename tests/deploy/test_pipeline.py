@@ -189,6 +189,8 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
     report["tracks_back_after_kill_s"] = after[0]["t"] - t_killed
     report["track_keys_before_kill"] = sorted({e["key"] for e in samples_between(events, before_kill - 2, before_kill, "arena/robots/")})
     report["track_keys_after_restart"] = sorted({e["key"] for e in after})
+    # IDs restored from the tracker's state file: no new track key after the restart
+    assert set(report["track_keys_after_restart"]) <= set(report["track_keys_before_kill"]), report
 
     # robot link cut: telemetry logged up to the cut, the gap recorded; the robots stop (their
     # firmware's 300 ms watchdog: the bridge's serial links cross the cut link) - from the

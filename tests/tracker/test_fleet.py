@@ -148,3 +148,76 @@ def test_a_shape_that_keeps_disagreeing_with_the_motion_is_ignored():
         o.shape_yaw, o.shape_order = rng.uniform(-np.pi, np.pi), 4
         last = ft.update([o], (k + 1) * DT)
     assert last[0].yaw == pytest.approx(0.0, abs=math.radians(3))
+
+
+def _drive(tracker, paths, k0, k1):
+    """paths: functions k -> (x, y, vx, vy) or None (no detection); steps k0..k1-1."""
+    out = []
+    for k in range(k0, k1):
+        t = (k + 1) * DT
+        obs = [ob(*p(k)[:2], t, *p(k)[2:]) for p in paths if p(k) is not None]
+        out.append(tracker.update(obs, t))
+    return out
+
+
+def _line(x0, y0, vx, vy, stop_k=None):
+    def pose(k):
+        kk = k if stop_k is None else min(k, stop_k)
+        moving = stop_k is None or k < stop_k
+        if not moving:
+            return None  # a stopped robot makes no events: no detection
+        return (x0 + vx * kk * DT * 1e-6, y0 + vy * kk * DT * 1e-6, vx, vy)
+    return pose
+
+
+def test_restore_brings_back_ids_names_and_headings_of_robots_that_stood_still_or_drove_on():
+    import json
+    first = FleetTracker()
+    # robot A drives and stops at k=50; robot B drives on (+x at 0.3 m/s); robot C drives +y
+    a = _line(0.3, 0.3, 0.2, 0.0, stop_k=50)
+    b = _line(0.3, 1.0, 0.3, 0.0)
+    c = _line(1.5, 0.3, 0.0, 0.3)
+    outs = _drive(first, [a, b, c], 0, 80)
+    ids = {round(t.y, 1) if t.x < 1.0 else "c": t.track_id for t in outs[-1]}
+    assert len(outs[-1]) == 3
+    first.set_robot_name(ids["c"], "zumo3")
+    snap = json.loads(json.dumps(first.snapshot()))  # through JSON, as the live service stores it
+    yaw_b = next(t.yaw for t in outs[-1] if t.track_id == ids[1.0])
+
+    # a restart of 2 s: robot A is still where it stopped, B and C drove on meanwhile
+    second = FleetTracker()
+    assert sorted(second.restore(snap)) == sorted(ids.values())
+    restored = second.update([], 81 * DT)
+    assert {t.track_id for t in restored} == set(ids.values())
+    assert all(t.state == "coasting" for t in restored)
+    assert abs(next(t.yaw for t in restored if t.track_id == ids[1.0]) - yaw_b) < 1e-6
+    a_moves = _line(0.3 + 0.2 * 0.5, 0.3, 0.2, 0.0)  # A starts again from where it stopped, at k=280
+    after = _drive(second, [lambda k: a_moves(k - 280) if k >= 280 else None, b, c], 280, 320)
+    final = {t.track_id: t for t in after[-1]}
+    assert set(final) == set(ids.values()), "a new ID instead of the restored one"
+    assert abs(final[ids[0.3]].x - a_moves(39)[0]) < 0.02
+    assert abs(final[ids[1.0]].x - b(319)[0]) < 0.02
+    assert final[ids["c"]].robot == "zumo3" and abs(final[ids["c"]].y - c(319)[1]) < 0.02
+    # a robot that is new after the restart gets a fresh ID, not a restored one's
+    d = _line(0.9, 1.6, -0.2, 0.0)
+    more = _drive(second, [b, c, d], 320, 330)
+    new = {t.track_id for t in more[-1]} - set(ids.values())
+    assert len(new) == 1 and min(new) > max(ids.values())
+
+
+def test_restore_rejects_snapshots_it_cannot_read_and_rebases_a_restarted_clock():
+    ft = FleetTracker()
+    with pytest.raises(ValueError, match="version"):
+        ft.restore({"v": 99, "tracks": []})
+    with pytest.raises(ValueError, match="malformed"):
+        ft.restore({"v": 1, "tracks": [{"id": 1}]})
+    with pytest.raises(ValueError, match="finite"):
+        ft.restore({"v": 1, "tracks": [{"id": 1, "x": float("nan"), "y": 0, "t_us": 0}]})
+    assert ft.tracks == []
+    # the snapshot's clock is ahead of the new stream (the camera restarted too): still coasting at rest
+    ft.restore({"v": 1, "next_id": 3, "tracks": [{"id": 2, "x": 0.5, "y": 0.5, "vx": 0.3, "vy": 0.0,
+                                                 "t_us": 50_000_000, "last_seen_us": 50_000_000}]})
+    out = ft.update([], 1_000_000)
+    assert [(t.track_id, round(t.x, 6), t.state) for t in out] == [(2, 0.5, "coasting")]
+    out = ft.update([ob(0.52, 0.5, 1_010_000, 0.2, 0.0)], 1_010_000)
+    assert [(t.track_id, t.state) for t in out] == [(2, "confirmed")]

@@ -157,3 +157,96 @@ def test_simulator_camera_edge_and_tracker_end_to_end(router, tmp_path):
     # real time on a shared machine may drop a few slices: identities and accuracy must hold
     assert scores.id_switches == 0 and scores.precision > 0.99 and scores.mae_cm < 2.0
     assert scores.recall > 0.8
+
+
+@pytest.mark.slow
+def test_tracker_sigkilled_and_restarted_brings_back_its_track_ids(router, tmp_path):
+    """SIGKILL the live tracker mid-run while the robots drive on; the restarted tracker
+    restores its state file and publishes the same track keys, with no ID switch. (Without
+    the restore, a fresh tracker numbers this seed's robots the other way round at the
+    restart: the ID-switch check fails.)"""
+    import signal
+
+    import numpy as np
+
+    from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+    from simulator.evt3 import CameraServer, canonical_order
+    from simulator.scenarios import Scenario, generate
+
+    rec = generate(Scenario(n_robots=2, pattern="circle", power=1.0, duration_s=5.0, seed=4))
+    (tmp_path / "calib.json").write_text(json.dumps(rec.calibration))
+    events = canonical_order(rec.events)
+    state = tmp_path / "tracker-state.json"
+    got: list[tuple[int, Track]] = []  # (tracker run, message)
+    run = [0]
+    lock = threading.Lock()
+
+    def on_track(sample):
+        with lock:
+            got.append((run[0], decode(bytes(sample.payload))))
+
+    def tracker() -> subprocess.Popen:
+        return subprocess.Popen(arena_cmd("-v", "track", "--camera", "sim0", "--calibration", str(tmp_path / "calib.json"),
+                                          "--state", str(state), *router.args),
+                                env=ENV, text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+    t = events["t"]
+
+    def play(cam, a0: int, a1: int) -> None:
+        for a in range(a0, a1, 10_000):   # real time pace
+            cam.publish(events[(t >= a) & (t < a + 10_000)], until_us=a + 10_000)
+            time.sleep(0.01)
+
+    procs = []
+    with CameraServer(drop_when_slow=False) as cam, open_session(router.settings("client")) as s:
+        s.declare_subscriber("arena/robots/*", on_track)
+        try:
+            procs.append(tracker())
+            _wait_alive(s, "arena/alive/tracker/tracker-sim0")
+            procs.append(subprocess.Popen(arena_cmd("edge", f"{cam.url}?width={rec.width}&height={rec.height}",
+                                                    "--camera", "sim0", *router.args),
+                                          env=ENV, text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE))
+            _wait_alive(s, "arena/alive/edge/sim0")
+            deadline = time.monotonic() + 20
+            while cam.n_clients < 1 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.5)
+            play(cam, 0, 2_500_000)
+            time.sleep(1.5)  # the state file is written every second
+            assert state.exists(), "no state file written"
+            procs[0].send_signal(signal.SIGKILL)
+            procs[0].wait(timeout=10)
+            with lock:
+                run[0] = 1
+            # the robots drive on for 0.6 s (~28 cm on their circles) while the tracker is down
+            play(cam, 2_500_000, 3_100_000)
+            procs[0] = tracker()
+            _wait_alive(s, "arena/alive/tracker/tracker-sim0")
+            time.sleep(0.5)
+            play(cam, 3_100_000, int(t[-1]) + 30_000)
+            time.sleep(2.0)
+            assert all(p.poll() is None for p in procs), "a service died"
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.terminate()
+            for p in procs:
+                p.communicate(timeout=20)
+    with lock:
+        msgs = list(got)
+    before = {str(m.track_id) for r, m in msgs if r == 0 and m.state != "tentative"}
+    after = [m for r, m in msgs if r == 1]
+    assert len(before) == 2, f"tracks before the kill: {before}"
+    assert after and {str(m.track_id) for m in after} == before, \
+        f"IDs {before} before the SIGKILL, {sorted({m.track_id for m in after})} after the restart"
+    # after the restart, the restored tracks follow the robots (no ID switch over the whole run)
+    msgs_after = [m for m in after if m.stamp_us >= 3_300_000]
+    tracks = np.array([(m.stamp_us, str(m.track_id), "", m.x, m.y, m.yaw if m.yaw is not None else np.nan,
+                        m.vx, m.vy, m.u_px, m.v_px, m.state, m.n_events) for _, m in msgs], dtype=TRACK_DTYPE)
+    truth = np.empty(rec.truth.size, TRUTH_DTYPE)
+    for k in ("t_us", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps"):
+        truth[k] = rec.truth[k]
+    truth["robot"] = np.asarray(rec.robot_names)[rec.truth["robot"]]
+    scores = evaluate(tracks, truth, gate_m=0.10)
+    assert scores.id_switches == 0, scores
+    assert len(msgs_after) > 50 and scores.precision > 0.97, scores

@@ -74,3 +74,39 @@ def test_tracks_take_the_names_of_ground_truth_poses_that_keep_falling_on_them()
     assert keys == {"arena/robots/1", "arena/robots/zumo-b"}
     assert {m.robot for _, m, _ in out} == {None, "zumo-b"}
     assert {tr.robot for _, _, tr in out} == {None, "zumo-b"}
+
+
+def test_state_file_round_trip_and_what_is_not_restored(tmp_path, monkeypatch):
+    import json
+
+    import pytest
+
+    from tracker.service import default_state_path, load_state, save_state
+
+    rng = np.random.default_rng(5)
+    ev = window(rng, [line_pose(200, 200, 100.0, 0.0)], 0, 400_000)
+    live = LiveTracker(make(), "c0", make_pipeline=make)
+    out = []
+    for k in range(40):
+        out = live.handle(win(ev, k).encode(), 0)
+    assert len(out) == 1
+    tid = out[0][1].track_id
+    path = tmp_path / "s" / "tracker-c0.json"
+    save_state(path, live.snapshot())
+    assert not path.with_name(path.name + ".tmp").exists()
+    fleet, why = load_state(path, "c0", max_age_s=600)
+    fresh = LiveTracker(make(), "c0", make_pipeline=make)
+    assert fresh.restore(fleet) == [tid]
+    # the restored track is published, with its ID, from the first window on
+    first = fresh.handle(win(ev, 40).encode(), 0)
+    assert [m.track_id for _, m, _ in first] == [tid]
+    # another camera's state, a stale one, and no file at all are not restored
+    assert load_state(path, "c1", 600)[0] is None
+    assert load_state(path, "c0", 600, now_s=json.loads(path.read_text())["written_s"] + 601)[0] is None
+    assert load_state(tmp_path / "none.json", "c0", 600)[0] is None
+    path.write_text('{"camera": "c0", "fleet": ')
+    with pytest.raises(ValueError, match="not JSON"):
+        load_state(path, "c0", 600)
+    # where it goes by default
+    monkeypatch.setenv("ARENA_STATE_DIR", str(tmp_path / "x"))
+    assert default_state_path("tracker-c0") == tmp_path / "x" / "tracker-c0.json"
