@@ -251,7 +251,8 @@ def _start_robots(stack: ExitStack, world, args, opts) -> None:
     for i, spec in enumerate(world.robots):
         port = opts["robot_ports"].get(i, args.robot_base_port + i if args.robot_base_port else 0)
         try:
-            emu = RobotEmulatorServer(world, i, host=args.host, port=port, seed=args.seed + 100 + i)
+            emu = RobotEmulatorServer(world, i, host=args.host, port=port, seed=args.seed + 100 + i,
+                                      clock=lambda: world.t)   # the robots' clocks run with the physics
             stack.enter_context(emu)
         except OSError as e:
             raise SystemExit(f"arena sim: cannot listen on robot port {port} for {spec.name}: {e}")

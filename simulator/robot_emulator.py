@@ -27,6 +27,7 @@ import socket
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from robot_bridge import protocol as P
@@ -111,11 +112,16 @@ class RobotEmulatorServer:
         record_telemetry: keep every clean TELEMETRY sent, keyed by seq, in
             :attr:`sent_telemetry`, and the seqs of corrupted frames in :attr:`corrupted_seqs`
             (for tests that check nothing corrupt was logged; memory grows with time).
+        clock: the robot's clock, seconds (default: wall time since the emulator started).
+            ``arena sim`` passes the world's simulated time: when the simulation falls behind
+            real time on a loaded machine, a wall clock would stamp encoder counts and gyro
+            rates measured in simulated seconds with wall seconds, and the host's odometry
+            would turn too far and drive too slowly (a real robot's clock and physics agree).
     """
 
     def __init__(self, world, robot_index: int, host: str = "127.0.0.1", port: int = 0,
                  telemetry_hz: float = 100, faults: LinkFaults | None = None, seed: int = 0,
-                 record_telemetry: bool = False):
+                 record_telemetry: bool = False, clock: Callable[[], float] | None = None):
         if not 1 <= telemetry_hz <= 1000:
             raise ValueError(f"telemetry_hz must be in [1, 1000], got {telemetry_hz}")
         world.pose(robot_index)  # raises IndexError for a bad index
@@ -141,6 +147,7 @@ class RobotEmulatorServer:
         self._n = 0
         self._seq = 0
         self._t0 = time.monotonic()
+        self._clock = clock
         self._motors = (0, 0)
         self._last_motor_cmd = 0.0
         self._flags = 0
@@ -214,7 +221,8 @@ class RobotEmulatorServer:
 
     # ------------------------------------------------------------------ internals
     def _now_us(self) -> int:
-        return int((time.monotonic() - self._t0) * 1e6) & 0xFFFFFFFF
+        t = self._clock() if self._clock is not None else time.monotonic() - self._t0
+        return int(t * 1e6) & 0xFFFFFFFF
 
     def _close_conn(self, count: bool) -> None:
         conn = self._conn
@@ -287,25 +295,26 @@ class RobotEmulatorServer:
             self._set_motors(0, 0)
             self.stats.last_command_t = time.monotonic()
         elif isinstance(msg, P.Ping):
-            self._send(P.Pong(msg.token), conn)
+            self._send(P.Pong(msg.token), conn=conn)
         elif isinstance(msg, P.Hello):
             self._send(P.HelloReply(FIRMWARE_VERSION, int(self.telemetry_hz), self.spec.counts_per_rev,
-                                    int(WATCHDOG_S * 1000), self.spec.name[:16]), conn)
+                                    int(WATCHDOG_S * 1000), self.spec.name[:16]), conn=conn)
         elif isinstance(msg, P.SetLed):
             self._led = (msg.r, msg.g, msg.b)
         else:
-            self._send(P.Error(P.ERR_UNKNOWN_TYPE, msg.TYPE, "unexpected"), conn)
+            self._send(P.Error(P.ERR_UNKNOWN_TYPE, msg.TYPE, "unexpected"), conn=conn)
 
     def _set_motors(self, left: int, right: int) -> None:
         self._motors = (left, right)
         self.world.set_power(self.index, left, right)
 
-    def _send(self, msg: P.Message, conn: _Conn) -> None:
-        """Encode one robot -> host frame and queue it through the fault model."""
+    def _send(self, msg: P.Message, time_us: int | None = None, *, conn: _Conn) -> None:
+        """Encode one robot -> host frame (stamped ``time_us``, default now) and queue it
+        through the fault model."""
         with self._lock:
             seq = self._seq
             self._seq = (self._seq + 1) & 0xFFFF
-            data = bytearray(P.encode_frame(msg, seq, self._now_us()))
+            data = bytearray(P.encode_frame(msg, seq, self._now_us() if time_us is None else time_us))
             self.stats.frames_sent += 1
             if isinstance(msg, P.Telemetry):
                 self.stats.telemetry_sent += 1
@@ -345,17 +354,22 @@ class RobotEmulatorServer:
             if self._conn is conn:
                 self._close_conn(count=False)
 
-    def _telemetry(self) -> P.Telemetry:
+    def _telemetry(self) -> tuple[P.Telemetry, int]:
+        """One TELEMETRY message and the robot-clock time it describes (read together under
+        the world's lock, so the stamp and the sensor values agree)."""
         w, i = self.world, self.index
-        enc_l, enc_r = w.encoder_counts(i)
-        imu = w.imu(i)
+        with w.lock:
+            enc_l, enc_r = w.encoder_counts(i)
+            imu = w.imu(i)
+            mv = w.battery_mv(i)
+            t_us = self._now_us()
         accel, gyro, mag = P.imu_to_raw(imu["accel"], imu["gyro"], imu["mag"])
-        mv = w.battery_mv(i)
         if mv < LOW_BATTERY_MV:
             self._flags |= P.FLAG_LOW_BATTERY
         wrap = lambda c: ((c + 2**31) % 2**32) - 2**31  # noqa: E731  int32 like the firmware
         left, right = self._motors
-        return P.Telemetry(wrap(enc_l), wrap(enc_r), accel, gyro, mag, min(mv, 0xFFFF), left, right, self._flags)
+        return P.Telemetry(wrap(enc_l), wrap(enc_r), accel, gyro, mag, min(mv, 0xFFFF), left, right,
+                           self._flags), t_us
 
     def _main_loop(self) -> None:
         period = 1.0 / self.telemetry_hz
@@ -384,7 +398,7 @@ class RobotEmulatorServer:
                     if next_tel < now:          # fell behind (loaded machine): skip, keep the rate
                         next_tel = now + period
                     if conn is not None:
-                        self._send(self._telemetry(), conn)
+                        self._send(*self._telemetry(), conn=conn)
                 while self._tx_queue and self._tx_queue[0][0] <= now:
                     _, _, data, c = heapq.heappop(self._tx_queue)
                     self._write(c, data)

@@ -71,6 +71,39 @@ def test_hello_ping_motors_and_telemetry_over_socket_url(world):
     assert world.pose(1)[0] > 0.5 + 0.03  # it moved forward (+x)
 
 
+def test_robot_clock_runs_with_the_simulated_time_when_given_the_worlds_clock():
+    # a simulation that falls behind real time (here: stepped at half speed) must not stamp
+    # its encoder counts with wall time, or the host's odometry and speeds come out wrong
+    w = World([RobotSpec("r1", (20, 20, 20))], seed=1)
+    w.step(2.0)
+    stop = threading.Event()
+
+    def run():
+        while not stop.is_set():
+            w.step(0.0005)
+            stop.wait(0.001)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    try:
+        with RobotEmulatorServer(w, 0, telemetry_hz=100, clock=lambda: w.t) as emu:
+            port = serial.serial_for_url(emu.url, timeout=0.02)
+            dec = P.StreamDecoder()
+            t0 = time.monotonic()
+            frames = read_frames(port, dec, 1.0)
+            wall = time.monotonic() - t0
+            port.close()
+    finally:
+        stop.set()
+        th.join()
+    tel = [f for f in frames if isinstance(f.msg, P.Telemetry)]
+    assert len(tel) > 30
+    first, last = tel[0].time_us, tel[-1].time_us
+    assert first >= 2_000_000                    # the world's time, not time since the emulator started
+    assert (last - first) / 1e6 < 0.75 * wall    # it advanced with the stepped world (<= half speed)
+    assert all(b.time_us >= a.time_us for a, b in zip(tel, tel[1:]))
+
+
 def test_watchdog_stops_motors_within_300ms(world):
     with RobotEmulatorServer(world, 0) as emu:
         port = serial.serial_for_url(emu.url, timeout=0.02)
