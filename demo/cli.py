@@ -75,6 +75,16 @@ def _robot_names(n: int) -> list[str]:
     return [spec.name for spec in Scenario(n_robots=n).robot_specs()]
 
 
+def _robot_markers(n: int) -> list[str]:
+    """``--marker ID=NAME`` arguments of the ground truth: the simulator's shells carry ArUco
+    markers, and the webcam's poses must carry the robots' names (the tracker names its tracks
+    after them, and the bridge closes its loop on ``arena/robots/<name>``)."""
+    from simulator.scenarios import Scenario
+
+    return [a for spec in Scenario(n_robots=n).robot_specs() if spec.marker_id is not None
+            for a in ("--marker", f"{spec.marker_id}={spec.name}")]
+
+
 def _print_table(line: str, quiet: bool, t0: float | None, duration: float) -> None:
     if quiet or t0 is None or not line.startswith("TABLE "):
         return
@@ -141,7 +151,8 @@ def run(args) -> int:
             web = f"http://127.0.0.1:{web_port}"
             specs.append(ProcSpec("groundtruth", python_cmd("groundtruth", "--video", f"{web}/stream.mjpg",
                                                          "--calibration", f"{web}/calibration.json", "--clock", "stream",
-                                                         "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"), *z),
+                                                         "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"),
+                                                         *_robot_markers(args.robots), *z),
                                   ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90))
             specs.append(ProcSpec("scorer", [sys.executable, "-m", "demo.scorer", *z], ready="scorer ready",
                                   on_line=lambda ln: _print_table(ln, args.quiet, clock["t0"], args.duration)))

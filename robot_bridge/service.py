@@ -258,6 +258,9 @@ class RobotHandle:
             if len(trace) >= 2:
                 res[key] = path_error(np.array(trace), cmd_path).as_dict()
         res["link"] = self.link.stats.as_dict()
+        est = self.estimator
+        res["fusion"] = {"tracks_used": est.tracks_used, "tracks_rejected": est.tracks_rejected,
+                         "heading_relocks": est.heading_relocks}
         if self.mission_log is not None:
             self.mission_log.event(time.time_ns(), status.split(":")[0].replace(" ", "_"), self.runner.phase)
             self.mission_log.close(status, **res)
