@@ -63,6 +63,8 @@ class Detection:
         shape_axis: orientation of the cluster's shape, rad in the sensor frame, known only
             modulo 2*pi/``shape_order`` (NaN when the shape is too round to tell).
         shape_order: the chassis' rotational symmetry (4 for a square footprint, 2 for a rectangle).
+        t_act_us: end of the cluster's activity (µs), where the position is evaluated: before
+            ``t_us`` when the robot stopped inside the window (None: not estimated).
     """
 
     u: float
@@ -79,6 +81,7 @@ class Detection:
     t_vel_us: int | None = None
     shape_axis: float = math.nan
     shape_order: int = 4
+    t_act_us: int | None = None
 
 
 # --------------------------------------------------------------------------- pixels
@@ -420,6 +423,7 @@ class Detector:
             sxx = s[c, 7] / n - xm * xm
             syy = s[c, 8] / n - ym * ym
             radius = math.sqrt(max(sxx + syy, 0.0))
+            t_eval = t_end_rel
             if stt <= 1e-12:
                 u, v = xm, ym
                 du = dv = sig = math.nan
@@ -450,7 +454,8 @@ class Detector:
             dets.append(Detection(u=u, v=v, t_us=int(t_end_us), n_events=int(n), n_pixels=int(npx[c]),
                                   du=du, dv=dv, speed_sigma=sig, heading=heading, heading_source=src,
                                   radius=radius, t_vel_us=int(t_ref_us) + int(round(tm * 1e6)),
-                                  shape_axis=axis, shape_order=order))
+                                  shape_axis=axis, shape_order=order,
+                                  t_act_us=int(t_ref_us) + int(round(t_eval * 1e6))))
         return dets
 
     def _split(self, labels, k, s, pu, pv, hints):

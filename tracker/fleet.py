@@ -47,6 +47,9 @@ class FleetConfig:
         vel_sigma_mps: floor of the detection velocity noise, m/s.
         yaw_accel_radps2: heading process noise, rad/s^2.
         min_speed_mps: speed above which the motion heading is trusted, m/s.
+        spin_radius_m: the motion heading is not trusted either while the robot turns faster
+            than its speed over this radius (a zero-point turn: the centroid of a spinning
+            robot drifts sideways by a few cm/s, in no relation to where it points), m.
         shape_sigma_deg: noise of the shape orientation, degrees (each track also learns how
             far its robot's shape disagrees with the motion heading while it drives, and
             ignores the shape when that disagreement is large: a round shell).
@@ -69,6 +72,7 @@ class FleetConfig:
     vel_sigma_mps: float = 0.03
     yaw_accel_radps2: float = 30.0
     min_speed_mps: float = 0.05
+    spin_radius_m: float = 0.08
     shape_sigma_deg: float = 3.0
     yaw_reset_updates: int = 8
     confirm_hits: int = 3
@@ -80,7 +84,7 @@ class FleetConfig:
 
     def validate(self) -> None:
         for name in ("chassis_m", "gate_m", "accel_mps2", "pos_sigma_m", "vel_sigma_mps",
-                     "yaw_accel_radps2", "stop_tau_s", "lost_s", "reclaim_m"):
+                     "yaw_accel_radps2", "stop_tau_s", "lost_s", "reclaim_m", "spin_radius_m"):
             val = getattr(self, name)
             if not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"fleet tracker {name} must be a positive number, got {val!r}")
@@ -88,6 +92,10 @@ class FleetConfig:
             raise ValueError("confirm_hits and tentative_max_misses must be >= 1")
         if self.fleet_size is not None and self.fleet_size < 1:
             raise ValueError(f"fleet_size must be >= 1 or None, got {self.fleet_size!r}")
+
+
+#: activity that ended this long before the window's end means the robot stopped, µs
+_REST_US = 30_000
 
 
 def _wrap(a: float) -> float:
@@ -155,6 +163,8 @@ class _Track:
         self.robot: str | None = None
         #: restored from a snapshot and not seen since
         self.restored = False
+        self._at_rest = False       # the robot stopped inside its last window
+        self._rest_rate = 0.0       # yaw rate just before it stopped, rad/s
         self._update_yaw(ob)
 
     @property
@@ -221,9 +231,24 @@ class _Track:
         the motion direction (when moving; it fixes the sign) and the shape orientation
         (modulo the footprint's symmetry, resolved by the prediction; it keeps the heading
         right through zero-point turns, when the motion direction is unknown)."""
-        lag = ((ob.t_us - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
+        # a robot that stopped inside the window (no events for a while before its end) is at
+        # rest since its activity ended, turning included. On the first such window, take back
+        # the heading the filter carried on at its yaw rate since then (else a robot braking
+        # out of a circle keeps turning in the filter); the window's measurements, at its mean
+        # event time, are carried to the stop at the rate before it; the rate is then zero.
+        t_ref = ob.t_us
+        at_rest = ob.t_act_us is not None and ob.t_us - ob.t_act_us > _REST_US
+        if at_rest:
+            t_ref = ob.t_act_us
+            if not self._at_rest and not math.isnan(self.yaw):
+                self.yaw = _wrap(self.yaw - self.yaw_rate * (ob.t_us - ob.t_act_us) * 1e-6)
+                self._rest_rate = self.yaw_rate
+            self.yaw_rate = self._rest_rate
+        self._at_rest = at_rest
+        lag = ((t_ref - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
         speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
-        if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps:
+        spinning = not math.isnan(self.yaw) and abs(self.yaw_rate) * self.cfg.spin_radius_m > speed
+        if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps and not spinning:
             pred = self.yaw - self.yaw_rate * lag
             if math.isnan(self.yaw):
                 # the first heading needs a clear motion (a starting robot's cluster grows
@@ -262,6 +287,8 @@ class _Track:
             # a square) is not used at all
             if abs(innov) < period / 3.0 and self._shape_var < (period / 8.0) ** 2:
                 self._yaw_measure(pred + innov, lag, math.radians(self.cfg.shape_sigma_deg) ** 2)
+        if at_rest:
+            self.yaw_rate = 0.0
 
     def _yaw_reset(self, yaw: float) -> None:
         self.yaw = _wrap(yaw)

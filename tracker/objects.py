@@ -33,6 +33,8 @@ class Observation:
         shape_yaw: orientation of the cluster's shape, rad, known modulo 2*pi/``shape_order``
             (NaN when unknown), at ``t_vel_us``.
         shape_order: rotational symmetry of the footprint (4: square, 2: rectangle).
+        t_act_us: end of the cluster's activity, µs (None: ``t_us``); well before ``t_us``
+            when the robot stopped inside the window (no events since: it is at rest).
     """
 
     x: float
@@ -49,6 +51,7 @@ class Observation:
     t_vel_us: int | None = None
     shape_yaw: float = math.nan
     shape_order: int = 4
+    t_act_us: int | None = None
 
 
 @dataclass

@@ -135,7 +135,8 @@ class Pipeline:
             shape = cal.heading_to_arena(d.u, d.v, d.shape_axis)
         return Observation(x=float(x), y=float(y), t_us=d.t_us, vx=vx, vy=vy, speed_sigma=sig, yaw=yaw,
                            yaw_source=d.heading_source, u=d.u, v=d.v, n_events=d.n_events,
-                           t_vel_us=d.t_vel_us, shape_yaw=shape, shape_order=d.shape_order)
+                           t_vel_us=d.t_vel_us, shape_yaw=shape, shape_order=d.shape_order,
+                           t_act_us=d.t_act_us)
 
 
 def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | None = None

@@ -119,6 +119,53 @@ def test_heading_follows_motion_and_stays_through_a_zero_point_turn():
     assert last[0].yaw == pytest.approx(math.pi / 2, abs=math.radians(5))
 
 
+def test_a_spinning_robot_whose_centroid_drifts_sideways_keeps_its_heading():
+    # a zero-point turn on real treads: the centroid slides sideways at ~6 cm/s, which looks
+    # like a motion heading at 90 degrees to the chassis; the shape turns continuously
+    ft = FleetTracker()
+    run(ft, [[ob(0.5 + 0.004 * k, 0.5, (k + 1) * DT, 0.4, 0.0)] for k in range(30)])
+    x, y = 0.5 + 0.004 * 29, 0.5
+    for k in range(50):
+        t = (31 + k) * DT
+        yaw = (math.pi / 2) * (k + 1) / 50                 # 0 -> 90 deg in 0.5 s (3.1 rad/s)
+        side = yaw - math.pi / 2                           # drifting to the robot's right
+        y += 0.0006 * math.sin(side)
+        x += 0.0006 * math.cos(side)
+        o = ob(x, y, t, 0.06 * math.cos(side), 0.06 * math.sin(side))
+        o.shape_yaw, o.shape_order = yaw + math.pi, 4      # same orientation modulo 90 deg
+        last = ft.update([o], t)
+        assert abs(math.remainder(last[0].yaw - yaw, 2 * math.pi)) < math.radians(20), (k, last[0].yaw, yaw)
+    assert last[0].yaw == pytest.approx(math.pi / 2, abs=math.radians(8))
+
+
+def test_a_robot_braking_out_of_a_turn_stops_turning_in_the_filter():
+    # driving a 0.3 m circle at 0.4 m/s (1.33 rad/s), then stopping dead: the windows that
+    # follow still hold its last events (activity ending before the window's end)
+    ft = FleetTracker()
+    w, r, cx, cy = 0.4 / 0.3, 0.3, 0.9, 0.9
+    last = None
+    for k in range(60):
+        t = (k + 1) * DT
+        a = w * t * 1e-6
+        yaw = a + math.pi / 2
+        o = ob(cx + r * math.cos(a), cy + r * math.sin(a), t, 0.4 * math.cos(yaw), 0.4 * math.sin(yaw))
+        o.shape_yaw, o.shape_order = yaw, 4
+        last = ft.update([o], t)
+    t_stop = 60 * DT
+    yaw_stop = w * t_stop * 1e-6 + math.pi / 2
+    assert abs(math.remainder(last[0].yaw - yaw_stop, 2 * math.pi)) < math.radians(5)
+    # 10 windows after the stop, each with the last 100 ms of motion (mean time 50 ms before the
+    # stop): no clear motion any more, and the shape (mod 90 deg) of where the robot stopped
+    a = w * t_stop * 1e-6
+    for k in range(1, 11):
+        t = t_stop + k * DT
+        o = ob(cx + r * math.cos(a), cy + r * math.sin(a), t, 0.0, 0.0)   # no motion heading
+        o.t_vel_us, o.t_act_us = t_stop - 50_000, t_stop
+        o.shape_yaw, o.shape_order = yaw_stop - w * 0.05, 4   # the window's mean heading
+        last = ft.update([o], t)
+    assert abs(math.remainder(last[0].yaw - yaw_stop, 2 * math.pi)) < math.radians(4), math.degrees(last[0].yaw - yaw_stop)
+
+
 def test_touching_robots_are_split_by_the_predictions():
     rng = np.random.default_rng(5)
     # two robots side by side, 26 px apart (25 px chassis): one DBSCAN cluster
