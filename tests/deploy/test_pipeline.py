@@ -82,8 +82,12 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
               env=dep.env("camera", "edge"), log=logs / "edge.log")
 
     # -- tracker host, robot host, viewer on the router host ----------------------------------
-    track_cmd = arena_cmd("-v", "track", "--lab", str(lab_toml), "--camera", "cam0", "--calibration", str(calib))
-    tracker = lab.spawn("tracker", track_cmd, env=dep.env("tracker", "tracker"), log=logs / "tracker.log")
+    def track_cmd(csv_out: Path) -> list[str]:
+        return arena_cmd("-v", "track", "--lab", str(lab_toml), "--camera", "cam0", "--calibration", str(calib),
+                         "--tracks-out", str(csv_out))
+
+    tracker = lab.spawn("tracker", track_cmd(logs / "tracks1.csv"), env=dep.env("tracker", "tracker"),
+                        log=logs / "tracker.log")
     bridge_args = [a for r, p in zip(robots, ports) for a in ("--robot", f"{r}=socket://{lab.addr('camera')}:{p}")]
     bridge_logs = tmp_path / "bridge_logs"
     lab.spawn("robot", arena_cmd("bridge", "run", "--log-dir", str(bridge_logs), *bridge_args), env=dep.env("robot", "bridge"),
@@ -146,7 +150,8 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
     before_kill = time.time()
     lab.kill(tracker, signal.SIGKILL)
     t_killed = time.time()
-    tracker = lab.spawn("tracker", track_cmd, env=dep.env("tracker", "tracker"), log=logs / "tracker2.log")
+    tracker = lab.spawn("tracker", track_cmd(logs / "tracks2.csv"), env=dep.env("tracker", "tracker"),
+                        log=logs / "tracker2.log")
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline and not samples_between(
             parse_events((logs / "viewer.out").read_text()), t_killed, time.time(), "arena/robots/"):
@@ -162,6 +167,7 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
     time.sleep(1.0)
 
     lab.kill(sim, signal.SIGTERM, timeout=20)  # flushes the truth CSV
+    lab.kill(tracker, signal.SIGTERM, timeout=20)  # flushes its tracks CSV
     lab.kill(viewer, signal.SIGTERM)
     events = parse_events((logs / "viewer.out").read_text())
     report = {}
@@ -182,6 +188,28 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
     report["track_keys_netem"] = sorted({e["key"] for e in lossy})
     report["impairment"] = "tc netem" if netem else f"userspace relay (no netem in this kernel): {(logs / 'impair.log').read_text().strip().splitlines()[-1]}"
     assert report["tracks_per_s_netem"] > 0.5 * report["tracks_per_s_clean"], report
+
+    # MOTA of the tracker's output (its CSV, camera clock) against the simulator's truth, clean phase
+    # vs impaired phase; host times map to the simulator's clock through the bridge's telemetry log
+    # (robot_time_us beside host_time_ns)
+    from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
+
+    tele = [r for f in sorted(bridge_logs.glob("*.csv")) for r in csv.DictReader(open(f)) if r["event"] == "sample"]
+    offset_us = float(np.median([int(r["robot_time_us"]) - int(r["host_time_ns"]) / 1e3 for r in tele]))
+    tracks1, truth_all = read_tracks_csv(logs / "tracks1.csv"), read_truth_csv(truth)
+
+    def mota(h0: float, h1: float) -> dict:
+        a, b = h0 * 1e6 + offset_us, h1 * 1e6 + offset_us
+        tr = tracks1[(tracks1["t_us"] >= a) & (tracks1["t_us"] < b)]
+        gt = truth_all[(truth_all["t_us"] >= a) & (truth_all["t_us"] < b)]
+        sc = evaluate(tr, gt, gate_m=0.10, moved_only=False)
+        return {"mota": round(sc.mota, 4), "recall": round(sc.recall, 4), "precision": round(sc.precision, 4),
+                "id_switches": sc.id_switches}
+
+    report["scores_clean"] = mota(t_clean, t_netem)
+    report["scores_impaired"] = mota(t_netem + 0.2, t_netem_end)
+    print("clean vs impaired:", report["scores_clean"], report["scores_impaired"])
+    assert report["scores_impaired"]["mota"] >= report["scores_clean"]["mota"] - 0.01, report
 
     # tracker SIGKILL: tracks come back; first track after the restart (s after the kill)
     after = [e for e in samples_between(events, t_killed, t_restarted_window, "arena/robots/")]
