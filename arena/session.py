@@ -89,6 +89,12 @@ class ZenohSettings:
         if conf.get_json("connect/retry") in ("null", ""):
             # Reconnect to a restarted router within ~1 s (Zenoh's default backoff grows to 4 s).
             put("connect/retry", {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2})
+        key = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+        if not self.config_file or conf.get_json(key) == "1000":
+            # Samples with congestion control DROP (event windows, tracks) wait up to 50 ms for
+            # room in the transmit queue before being dropped, not Zenoh's 1 ms: on a busy 2-core
+            # host the transmit task is often off the CPU that long, and windows were lost.
+            put(key, DROP_WAIT_US)
         if self.lease_ms:
             put("transport/link/tx/lease", int(self.lease_ms))
             put("transport/link/tx/keep_alive", 4)
@@ -103,6 +109,10 @@ class ZenohSettings:
         ends = ", ".join(self.connect) or "none"
         lst = f", listening on {', '.join(self.listen)}" if self.listen else ""
         return f"{self.mode} mode, connecting to {ends}{lst}"
+
+
+#: how long a DROP sample waits for room in a full transmit queue, µs (Zenoh's default: 1000)
+DROP_WAIT_US = 50_000
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:

@@ -245,7 +245,7 @@ def run_edge_cli(args) -> int:
     with source:
         filters = _build_filters(args, source.width, source.height, cam)
         pipeline = EdgePipeline(filters, slice_us=int(round(args.slice_ms * 1000)))
-        with open_session(args, lab=lab) as session:
+        with open_session(args, lab=lab, wait_s=None) as session:
             res = run_edge(session, source, pipeline, name, args.codec, queue_size=args.queue,
                            duration_s=args.duration, stop=stop)
     log.info("edge %s done: %s", name, res)

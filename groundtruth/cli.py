@@ -315,7 +315,7 @@ def _run_loop(args, lab, source, detector) -> int:
     with contextlib.ExitStack() as stack:
         session = svc = None
         if not args.no_zenoh:
-            session = stack.enter_context(open_session(args, lab))
+            session = stack.enter_context(open_session(args, lab, wait_s=None))
             svc = stack.enter_context(Service(session, "groundtruth", args.name))
         try:
             runner = GroundTruthRunner(session, source, detector, svc, args.csv, args.annotate)

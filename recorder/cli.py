@@ -104,7 +104,7 @@ def run_record(args) -> int:
     meta = {"host": socket.gethostname(), "keys": ",".join(keys), "started_ns": str(time.time_ns()),
             "command": " ".join(sys.argv)}
     try:
-        with open_session(args) as session:
+        with open_session(args, wait_s=None) as session:
             res = record(session, out, keys, stop, duration_s=args.duration, name=name, queue_size=args.queue,
                          metadata=meta,
                          on_ready=lambda: print(f"recording {', '.join(keys)} to {out} (Ctrl-C to stop)",

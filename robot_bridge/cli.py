@@ -168,7 +168,7 @@ def run_service(args) -> int:
     name = args.name or f"bridge-{robots[0].name}"
     stop = stop_on_signals()
     try:
-        with open_session(args, lab=lab) as session, Service(session, "bridge", name) as svc:
+        with open_session(args, lab=lab, wait_s=None) as session, Service(session, "bridge", name) as svc:
             watch = (getattr(args, "mode", None) or (lab.zenoh.mode if lab else "peer")) == "client"
             with Bridge(session, robots, o, service=svc, watch_router=watch) as bridge:
                 svc.set_state("running")

@@ -289,7 +289,7 @@ def _start_truth_publisher(stack: ExitStack, args, specs, camera) -> _TruthPubli
     from arena.service import Service
     from arena.session import SessionError, open_session
     try:
-        session = stack.enter_context(open_session(args))
+        session = stack.enter_context(open_session(args, wait_s=None))
     except SessionError as e:
         raise SystemExit(f"arena sim: cannot open the Zenoh session for --publish-truth: {e}")
     svc = stack.enter_context(Service(session, "sim", "sim"))

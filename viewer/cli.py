@@ -112,7 +112,7 @@ def run(args) -> int:
     stop = stop_on_signals()
     thread = threading.Thread(target=server.serve_forever, name="http", daemon=True)
     try:
-        with open_session(args) as session, Service(session, "viewer", name) as svc:
+        with open_session(args, wait_s=None) as session, Service(session, "viewer", name) as svc:
             subs = subscribe(session, state, camera)
             svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count())))
             thread.start()

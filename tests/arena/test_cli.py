@@ -10,7 +10,7 @@ from importlib.metadata import entry_points
 import pytest
 
 from arena import __version__
-from tests.conftest import arena_cmd
+from tests.conftest import arena_cmd, free_port, wait_for_line
 
 SERVICE = textwrap.dedent("""
     import sys, time
@@ -93,3 +93,31 @@ def test_status_without_router_says_what_to_check():
 
 def router_args(router):
     return ["-e", router.endpoint]
+
+
+def test_a_service_started_before_its_router_waits_for_it_then_runs(tmp_path):
+    # start order is free (docs/deployment.md): a long-running service in client mode retries
+    # until its router is up, then runs as usual
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    out = tmp_path / "early.mcap"
+    proc = subprocess.Popen(arena_cmd("record", str(out), "--duration", "30", "-m", "client", "-e", endpoint),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    router = None
+    try:
+        time.sleep(3.0)
+        assert proc.poll() is None, proc.communicate()
+        router = subprocess.Popen(arena_cmd("router", "-l", endpoint), stdout=subprocess.PIPE,
+                                  stderr=subprocess.STDOUT, text=True)
+        wait_for_line(router, "listening on")
+        wait_for_line(proc, "recording arena/**", timeout=20)
+        proc.terminate()
+        stdout, stderr = proc.communicate(timeout=20)
+    finally:
+        for p in (proc, router):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait(timeout=5)
+    assert proc.returncode == 0, stderr
+    assert "waiting for Zenoh" in stderr
+    assert out.stat().st_size > 0
