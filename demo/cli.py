@@ -129,20 +129,30 @@ def run(args) -> int:
     code = 0
     calib = run_dir / "cam0.calib.json"
     try:
-        sup.start(ProcSpec("router", python_cmd("router", "-l", endpoint, "--name", "demo"), ready="listening on"))
+        # router, simulator, recorder and scorer start together (each waits for the router); the
+        # services that need the simulator's devices or calibration follow once it runs. Every
+        # process imports numpy/numba/OpenCV (seconds of CPU), so overlapping them is what makes
+        # the first track come early.
+        sim = python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
+                         "--camera-port", str(cam_port), "--webcam-port", str(web_port),
+                         "--robot-base-port", str(robot_base), "--layout", _layout(args.mission),
+                         "--truth-csv", str(run_dir / "truth.csv"), "--calibration-out", str(calib),
+                         "--record-raw", str(run_dir / "events.raw"), "--publish-truth", *z)
+        early = [sup.start(ProcSpec("router", python_cmd("router", "-l", endpoint, "--name", "demo"),
+                                    ready="listening on"), wait=False),
+                 sup.start(ProcSpec("sim", sim, ready="running", ready_timeout_s=90), wait=False),
+                 sup.start(ProcSpec("scorer", [sys.executable, "-m", "demo.scorer", *z], ready="scorer ready",
+                                    on_line=lambda ln: _print_table(ln, args.quiet, clock["t0"], args.duration)),
+                           wait=False)]
+        early[0].wait_ready()
         with open_session(ZenohSettings(mode="client", connect=[endpoint]), wait_s=10) as session:
             alive = _AliveSet(session)
-            sim = python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
-                             "--camera-port", str(cam_port), "--webcam-port", str(web_port),
-                             "--robot-base-port", str(robot_base), "--layout", _layout(args.mission),
-                             "--truth-csv", str(run_dir / "truth.csv"), "--calibration-out", str(calib),
-                             "--record-raw", str(run_dir / "events.raw"), "--publish-truth", *z)
-            sup.start(ProcSpec("sim", sim, ready="running", ready_timeout_s=90))
-            # the rest start together (each imports numpy/numba/OpenCV: seconds of CPU), then we wait for all
-            specs = [ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name", "demo", *z),
-                              ready_check=alive.has("recorder", "demo"), ready_timeout_s=90)]
-            specs.append(ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
-                                  ready_check=alive.has("edge", "cam0"), ready_timeout_s=90))
+            early.append(sup.start(ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name",
+                                                                   "demo", *z),
+                                            ready_check=alive.has("recorder", "demo"), ready_timeout_s=90), wait=False))
+            early[1].wait_ready()
+            specs = [ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
+                              ready_check=alive.has("edge", "cam0"), ready_timeout_s=90)]
             specs.append(ProcSpec("tracker", python_cmd("track", "--camera", "cam0", "--calibration", str(calib),
                                                      "--tracker", args.tracker, "--fleet-size", str(args.robots),
                                                      "--name", "cam0", "--tracks-out", str(run_dir / "tracks.csv"),
@@ -154,8 +164,6 @@ def run(args) -> int:
                                                          "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"),
                                                          *_robot_markers(args.robots), *z),
                                   ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90))
-            specs.append(ProcSpec("scorer", [sys.executable, "-m", "demo.scorer", *z], ready="scorer ready",
-                                  on_line=lambda ln: _print_table(ln, args.quiet, clock["t0"], args.duration)))
             if args.view:
                 specs.append(ProcSpec("viewer", python_cmd("view", "--port", str(args.view_port), "--name", "demo",
                                                            "--calibration", str(calib), *z), ready="viewer on"))
@@ -164,7 +172,7 @@ def run(args) -> int:
                                 "--name", "demo", "--log-dir", str(run_dir / "telemetry"), *z)
             specs.append(ProcSpec("bridge", bridge, ready_check=alive.has("bridge", "demo"), ready_timeout_s=90,
                                   stop_timeout_s=5))
-            for proc in [sup.start(spec, wait=False) for spec in specs]:
+            for proc in early[2:] + [sup.start(spec, wait=False) for spec in specs]:
                 proc.wait_ready()
             print(f"all services up ({time.monotonic() - t_start:.1f} s after launch)"
                   + (f"; viewer: http://127.0.0.1:{args.view_port}" if args.view else ""), flush=True)
@@ -179,6 +187,7 @@ def run(args) -> int:
                 if first_track_s is None and alive.tracks_seen:
                     first_track_s = alive.tracks_seen - t_start
                 stop.wait(0.2)
+            clock["t0"] = None   # the missions are over: no more live tables while stopping
     except KeyboardInterrupt:
         print("\narena demo: interrupted, stopping (robots first)...", flush=True)
         code = 130
@@ -278,6 +287,25 @@ def _start_missions(session, robots: list[str], args) -> None:
             raise RuntimeError(f"the bridge refused the mission for {r}: {getattr(reply, 'error', reply)}")
 
 
+def _missions_end_us(telemetry_dir: Path) -> int | None:
+    """When the first mission ended (stopped at the end of the demo), on the simulator's clock:
+    the emulated robots' clocks are the simulator's, so the host time of the mission's end row
+    maps through the last telemetry sample before it. None when no mission log says so."""
+    import csv
+
+    ends = []
+    for path in sorted(Path(telemetry_dir).glob("*.csv")):
+        last = None
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f):
+                if row["event"] == "sample":
+                    last = (int(row["host_time_ns"]), int(row["robot_time_us"]))
+                elif last is not None and row["event"] != "gap":   # the mission's end (or its link's)
+                    ends.append(last[1] + (int(row["host_time_ns"]) - last[0]) // 1000)
+                    break
+    return min(ends) if ends else None
+
+
 def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     """Score the run, write the report, print where everything is."""
     summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "pids": pids, "first_track_s": first_track_s}
@@ -286,7 +314,12 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
         from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
 
         try:
-            scores = evaluate(read_tracks_csv(tracks), read_truth_csv(truth), gate_m=0.10)
+            tr, gt = read_tracks_csv(tracks), read_truth_csv(truth)
+            end_us = _missions_end_us(run_dir / "telemetry")
+            if end_us is not None:   # score the missions, not the robots parked while stopping
+                summary["scored_until_us"] = end_us
+                tr, gt = tr[tr["t_us"] <= end_us], gt[gt["t_us"] <= end_us]
+            scores = evaluate(tr, gt, gate_m=0.10)
             summary["scores"] = scores.to_dict()
             summary["ok"] = True
         except Exception as exc:  # noqa: BLE001 - report what failed rather than crash at the end
