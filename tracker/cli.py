@@ -80,8 +80,9 @@ def register_track(sub) -> None:
     p.add_argument("--fleet-size", type=int, default=None,
                    help="number of robots (caps confirmed tracks; default: the lab config's robots)")
     p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
-    p.add_argument("--queue", type=int, default=32,
-                   help="live: newest slices kept when lagging or when a burst arrives late (default 32: 0.32 s of 10 ms slices)")
+    p.add_argument("--queue", type=int, default=100,
+                   help="live: newest slices kept when lagging or when a burst arrives late "
+                        "(default 100: 1 s of 10 ms slices; a lagging tracker catches up at ~1 ms per slice)")
     p.add_argument("--no-names", dest="names_from_groundtruth", action="store_false",
                    help="live: do not name tracks after the robots of arena/groundtruth/* poses")
     p.add_argument("--state", metavar="FILE", default=None,

@@ -86,6 +86,11 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
     seqs = [w.seq for w in windows]
     assert len(windows) > 300 and seqs == list(range(seqs[0], seqs[0] + len(seqs))), "event windows lost"
     assert windows[-1].dropped == 0
+    # ... and the tracker worked on every one of them (its status counts sequence gaps)
+    with open(run_dir / "arena.mcap", "rb") as f:
+        status = [json.loads(m.data) for _, _, m in make_reader(f).iter_messages(topics=["arena/status/tracker/cam0"])]
+    assert status and status[-1]["counters"]["windows_in"] > 300, status[-1:]
+    assert status[-1]["counters"].get("windows_missed", 0) == 0, status[-1]
     for log in ("router", "sim", "edge", "tracker", "bridge", "groundtruth"):
         assert (run_dir / "logs" / f"{log}.log").exists()
 
