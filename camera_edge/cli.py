@@ -184,7 +184,7 @@ def run_edge_cli(args) -> int:
     from arena.service import stop_on_signals
     from arena.session import load_lab_from_args, open_session
     from camera_edge.devices import list_devices
-    from camera_edge.pipeline import EdgePipeline
+    from camera_edge.pipeline import EdgePipeline, warm_up
     from camera_edge.service import run_edge
     from camera_edge.sources import SourceError, open_source
 
@@ -245,6 +245,9 @@ def run_edge_cli(args) -> int:
     with source:
         filters = _build_filters(args, source.width, source.height, cam)
         pipeline = EdgePipeline(filters, slice_us=int(round(args.slice_ms * 1000)))
+        # compile the kernels before declaring liveliness (seconds on the first run after install)
+        warm_up(lambda: _build_filters(args, source.width, source.height, cam), source.width, source.height,
+                args.codec, slice_us=pipeline.slicer.slice_us)
         with open_session(args, lab=lab, wait_s=None) as session:
             res = run_edge(session, source, pipeline, name, args.codec, queue_size=args.queue,
                            duration_s=args.duration, stop=stop)

@@ -53,3 +53,22 @@ class EdgePipeline:
     def flush(self) -> list[Window]:
         """The last, partial window (end of a file)."""
         return self._windows(self.slicer.flush())
+
+
+def warm_up(make_filters, width: int, height: int, codec: str, slice_us: int = 10_000) -> None:
+    """Run throw-away filters (``make_filters()``: fresh instances, so no learnt state is
+    touched), the EVT 3.0 decoder and the window codec over a few synthetic slices, so their
+    numba kernels are compiled (or loaded from numba's cache) before the first real events: on
+    a fresh install that takes seconds, during which a live edge would drop windows."""
+    from arena.codec import encode
+    from arena.events import make_events
+    from arena.formats.evt3 import decode_evt3, encode_evt3
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    t = np.sort(rng.integers(0, 3 * slice_us, n))
+    ev = make_events(rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n), t)
+    ev = decode_evt3(encode_evt3(ev))
+    pipe = EdgePipeline(make_filters(), slice_us=slice_us)
+    for w in pipe.push(ev, 3 * slice_us) + pipe.flush():
+        encode(w.events, codec, t_ref_us=w.t_start_us)

@@ -331,10 +331,18 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
             roots[nr] = a
             keys[nr] = root_min[a]
             nr += 1
-    rank = np.argsort(keys[:nr])
-    root_label = np.full(n, -1, dtype=np.int64)
+    # label clusters in the order of their first pixel: the keys are distinct indices in
+    # [0, n) (clusters are disjoint), so a scatter ranks them without a sort (which would
+    # also cost seconds of numba compilation on a fresh install)
+    slot = np.full(n, -1, dtype=np.int64)
     for k in range(nr):
-        root_label[roots[rank[k]]] = k
+        slot[keys[k]] = k
+    root_label = np.full(n, -1, dtype=np.int64)
+    label = 0
+    for i in range(n):
+        if slot[i] >= 0:
+            root_label[roots[slot[i]]] = label
+            label += 1
     labels = np.full(n, -1, dtype=np.int64)
     core_out = np.zeros(n, dtype=np.bool_)
     for a in range(n):

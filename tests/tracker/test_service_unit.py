@@ -110,3 +110,35 @@ def test_state_file_round_trip_and_what_is_not_restored(tmp_path, monkeypatch):
     # where it goes by default
     monkeypatch.setenv("ARENA_STATE_DIR", str(tmp_path / "x"))
     assert default_state_path("tracker-c0") == tmp_path / "x" / "tracker-c0.json"
+
+
+def test_sequence_gaps_are_split_into_edge_drops_and_windows_lost_on_the_way():
+    class Counts:
+        def __init__(self):
+            self.c = {}
+
+        def count(self, key, n=1):
+            self.c[key] = self.c.get(key, 0) + n
+
+        def gauge(self, key, value):
+            pass
+
+        def error(self, msg):
+            pass
+
+    rng = np.random.default_rng(5)
+    ev = window(rng, [line_pose(200, 200, 100.0, 0.0)], 0, 300_000)
+    svc = Counts()
+    live = LiveTracker(make(), "c0", svc=svc)
+    dropped = 0
+    for k in range(30):
+        if k in (8, 9, 10):          # the edge dropped these three (its counter says so)
+            dropped += 1
+            continue
+        if k in (20, 21):            # these two were lost after the edge published them
+            continue
+        w = win(ev, k)
+        w.dropped = dropped
+        live.handle(w.encode(), now_ns=5)
+    assert svc.c.get("windows_dropped_at_edge") == 3
+    assert svc.c.get("windows_missed") == 2
