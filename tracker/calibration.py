@@ -249,6 +249,15 @@ def find_mat_corners(gray: np.ndarray) -> np.ndarray:
             break
     if quad is None:
         raise CalibrationError("the mat's outline is not a quadrilateral (occluded corner?): give --points")
+    # a mat is one solid bright quadrilateral on a darker surround; speckle (e.g. an event image
+    # of sensor noise only) can close into a large blob with four corners too: refuse it
+    inside = np.zeros_like(mask)
+    cv2.fillConvexPoly(inside, quad.astype(np.int32), 255)
+    fill = float((mask[inside > 0] > 0).mean())
+    spill = float((mask[inside == 0] > 0).mean()) if (inside == 0).any() else 0.0
+    if fill < 0.85 or spill > 0.15:
+        raise CalibrationError(f"no clear mat in the image (the bright quadrilateral found is {100 * fill:.0f} % "
+                               f"filled, {100 * spill:.0f} % bright outside): give --points")
     # order: bottom-left, bottom-right, top-right, top-left (v grows downwards)
     s = quad.sum(1)
     d = quad[:, 0] - quad[:, 1]

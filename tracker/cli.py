@@ -251,7 +251,16 @@ def run_calibrate(args) -> int:
                     raise SystemExit(f"arena calibrate: cannot read the image {args.image!r}")
             else:
                 image = _event_image(args.events, args.seconds)
-            corners = find_mat_corners(image)
+            try:
+                corners = find_mat_corners(image)
+            except CalibrationError as exc:
+                if args.events:   # a still, steadily lit mat makes no events
+                    raise CalibrationError(
+                        f"{exc}. An event camera sees the mat only where its light changes: record it "
+                        "under flickering mains light (most lamps flicker at 100/120 Hz) or while "
+                        "sweeping a light over it, or calibrate from a webcam frame (--image)") from None
+                raise
+
             cal = Calibration.from_points(corners, mat_points(L), (image.shape[1], image.shape[0]))
     except CalibrationError as exc:
         raise SystemExit(f"arena calibrate: {exc}") from None
