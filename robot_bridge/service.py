@@ -123,11 +123,15 @@ class RobotHandle:
     def start(self) -> None:
         self.link.start()
 
-    def close(self) -> None:
-        """Stop the robot, close its mission log and its link."""
+    def halt(self) -> None:
+        """Stop the robot and close its mission log (the link stays open)."""
         with self.lock:
             self._end_mission("interrupted: bridge shut down")
         self._stop_motors()
+
+    def close(self) -> None:
+        """Stop the robot, close its mission log and its link."""
+        self.halt()
         self.link.close()
 
     # ------------------------------------------------------------------ commands
@@ -438,7 +442,9 @@ class Bridge:
     def close(self) -> None:
         """Stop every robot, close logs, links and Zenoh declarations."""
         self._stop.set()
-        for h in self.handles.values():
+        for h in self.handles.values():   # every robot stops first, then the links close (each
+            h.halt()                      # close waits for its reader: stopping robot by robot
+        for h in self.handles.values():   # left the last one driving for ~1.4 s)
             h.close()
         for d in self._decls:
             try:

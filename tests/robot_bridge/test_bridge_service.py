@@ -228,3 +228,19 @@ def test_missions_start_together_at_start_ns(lab):
     assert abs(moved[0] - moved[1]) < 0.05e9                     # together, within a control period or two
     assert max(moved.values()) - start_ns < 0.1e9
     assert lab["bridge"].handles["r1"].mission_log is not None
+
+
+def test_shutdown_stops_every_robot_before_closing_any_link(lab):
+    # closing a link waits for its reader; stopping robot by robot left the last one driving
+    # for over a second. All robots stop first, then the links close.
+    s, world, bridge = lab["session"], lab["world"], lab["bridge"]
+    e1, _ = lab["emus"]
+    assert all(r.ok for r in ask(s, "all", "mission", circle(params={"laps": 3})))
+    assert wait_for(lambda: world.power(0) != (0, 0) and world.power(1) != (0, 0), 1.0)
+    th = threading.Thread(target=bridge.close)
+    th.start()
+    assert wait_for(lambda: world.power(1) == (0, 0), 2.0, step=0.001)
+    link1_open_when_r2_stopped = e1.connected
+    th.join(timeout=10)
+    assert world.power(0) == (0, 0)
+    assert link1_open_when_r2_stopped, "r2 was stopped only after r1's link had been closed"
