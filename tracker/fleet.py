@@ -19,7 +19,9 @@ Arena frame throughout: metres, m/s, yaw in rad counter-clockwise from +x, times
   a state file every second). Restored tracks keep their IDs and robot names and wait, at
   rest, where they were last seen: a robot that stood still is matched there when it moves;
   one that drove on during the restart is found again when a new track confirms within
-  ``reclaim_m`` of it (optimal assignment, nearest first) and takes that track over.
+  ``reclaim_m`` of it, or within the distance it can have driven since (``max_speed_mps``
+  times the time since it was last seen; optimal assignment, nearest first), and takes that
+  track over.
 """
 
 from __future__ import annotations
@@ -62,7 +64,9 @@ class FleetConfig:
         lost_s: a coasting track unseen this long may be re-acquired anywhere when the fleet
             is full and a new robot-sized object keeps being detected elsewhere, s.
         reclaim_m: a restored track not seen since the restore is taken over by a new track
-            that confirms within this distance of it, m (the robot drove on meanwhile).
+            that confirms within this distance of it, m (the robot drove on meanwhile), or
+            within how far a robot at ``max_speed_mps`` can have driven since it was last seen.
+        max_speed_mps: the fleet's top speed, m/s (Zumo-class robots: 0.46), with a margin.
     """
 
     chassis_m: float = 0.10
@@ -81,10 +85,11 @@ class FleetConfig:
     fleet_size: int | None = None
     lost_s: float = 2.0
     reclaim_m: float = 1.0
+    max_speed_mps: float = 0.6
 
     def validate(self) -> None:
         for name in ("chassis_m", "gate_m", "accel_mps2", "pos_sigma_m", "vel_sigma_mps",
-                     "yaw_accel_radps2", "stop_tau_s", "lost_s", "reclaim_m", "spin_radius_m"):
+                     "yaw_accel_radps2", "stop_tau_s", "lost_s", "reclaim_m", "spin_radius_m", "max_speed_mps"):
             val = getattr(self, name)
             if not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"fleet tracker {name} must be a positive number, got {val!r}")
@@ -463,7 +468,8 @@ class FleetTracker:
 
     def _reclaim(self) -> None:
         """Restored tracks not seen since the restore are taken over (IDs and names kept) by
-        tracks that have just confirmed within ``reclaim_m``: optimal assignment."""
+        tracks that have just confirmed within ``reclaim_m``, or within the distance a robot can
+        have driven since the restored track was last seen: optimal assignment, nearest first."""
         waiting = [tr for tr in self.tracks if tr.restored]
         if not waiting:
             return
@@ -471,8 +477,11 @@ class FleetTracker:
                  and tr.hits == self.config.confirm_hits and tr.robot is None]
         if not fresh:
             return
+        cfg = self.config
         cost = np.array([[math.hypot(n.ax.p - o.ax.p, n.ay.p - o.ay.p) for o in waiting] for n in fresh])
-        cost[cost > self.config.reclaim_m] = 1e6
+        reach = np.array([[max(cfg.reclaim_m, cfg.max_speed_mps * max(0, n.t_us - o.last_seen_us) * 1e-6
+                               + cfg.chassis_m) for o in waiting] for n in fresh])
+        cost[cost > reach] = 1e6
         for r, c in zip(*linear_sum_assignment(cost)):
             if cost[r, c] >= 1e6:
                 continue

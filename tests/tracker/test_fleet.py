@@ -252,6 +252,25 @@ def test_restore_brings_back_ids_names_and_headings_of_robots_that_stood_still_o
     assert len(new) == 1 and min(new) > max(ids.values())
 
 
+def test_a_robot_that_drove_far_during_a_long_restart_gets_its_id_back():
+    # the state file was 3.4 s old: the robot drove 1.36 m at 0.4 m/s meanwhile (more than
+    # reclaim_m), which no robot of the fleet could have done in less time
+    import json
+    first = FleetTracker()
+    a = _line(0.3, 0.2, 0.4, 0.0)
+    b = _line(1.0, 1.4, 0.0, 0.0)   # a second robot standing still, to be kept apart
+    outs = _drive(first, [a, lambda k: b(k) if k < 5 else None], 0, 40)
+    ids = {round(t.y, 1): t.track_id for t in outs[-1]}
+    snap = json.loads(json.dumps(first.snapshot()))
+    second = FleetTracker()
+    second.restore(snap)
+    after = _drive(second, [a], 380, 400)            # back 3.4 s later, 1.36 m further on
+    final = {t.track_id: t for t in after[-1]}
+    assert set(final) == set(ids.values()), "a new ID instead of the restored one"
+    assert final[ids[0.2]].state == "confirmed" and abs(final[ids[0.2]].x - a(399)[0]) < 0.02
+    assert final[ids[1.4]].state == "coasting"       # the robot that stood still waits where it was
+
+
 def test_restore_rejects_snapshots_it_cannot_read_and_rebases_a_restarted_clock():
     ft = FleetTracker()
     with pytest.raises(ValueError, match="version"):
