@@ -80,6 +80,12 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
 
     # the scoring meets the tracker issue's accuracy targets
     s = summary["scores"]
+    # scored over the missions: from the robots' first motion until the demo stopped them (the
+    # robots stand parked while the lab shuts down; those seconds are not part of the run)
+    with open(run_dir / "truth.csv") as f:
+        truth_end = max(int(r["t_us"]) for r in csv.DictReader(f))
+    assert 9_000_000 < summary["scored_until_us"] < truth_end, (summary["scored_until_us"], truth_end)
+    assert 400 <= s["n_frames"] <= 1150, s["n_frames"]   # at most ~11 s of 10 ms slices (the simulator may lag)
     # issue targets: precision/recall/MOTA >= 0.99, MAE <= 1 cm, no ID switch
     assert s["precision"] >= 0.99 and s["recall"] >= 0.99 and s["mota"] >= 0.99, s
     assert s["mae_cm"] <= 1.0 and s["id_switches"] == 0, s
