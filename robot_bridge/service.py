@@ -443,8 +443,8 @@ class Bridge:
         """Stop every robot, close logs, links and Zenoh declarations."""
         self._stop.set()
         for h in self.handles.values():   # every robot stops first, then the links close (each
-            h.halt()                      # close waits for its reader: stopping robot by robot
-        for h in self.handles.values():   # left the last one driving for ~1.4 s)
+            h.halt()                      # close joins its reader: stopping robot by robot left
+        for h in self.handles.values():   # the last one driving 0.35 s per robot, over 1 s loaded)
             h.close()
         for d in self._decls:
             try:
