@@ -307,6 +307,7 @@ class RobotHandle:
         if not isinstance(fr.msg, P.Telemetry):
             return
         tel = fr.msg
+        accel, gyro, mag = tel.accel_si, tel.gyro_si, tel.mag_si   # converted once per frame
         with self.lock:
             seq = self._seq(fr.seq)
             t_us = self._clock(fr.time_us)
@@ -320,32 +321,33 @@ class RobotHandle:
                 self.mission_log.gap(now_ns, seq - gap, gap, self.runner.phase if self.runner else "")
             phase = None
             if self.runner is not None:
-                phase = self._control(tel, now_ns, t_us)
+                phase = self._control(tel, now_ns, t_us, gyro[2])
             else:
                 self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(
-                    tel.enc_left, tel.enc_right, tel.gyro_si[2], t_us / 1e6))
+                    tel.enc_left, tel.enc_right, gyro[2], t_us / 1e6))
             if self.mission_log is not None:
                 self.mission_log.sample(Sample(now_ns, t_us, seq, tel.enc_left, tel.enc_right, *self._speeds,
-                                               tel.accel_si, tel.gyro_si, tel.mag_si, tel.battery_mv,
+                                               accel, gyro, mag, tel.battery_mv,
                                                tel.motor_left, tel.motor_right, phase or ""))
             self.samples += 1
             mission = self.mission_id
         if self.publish is not None:
             msg = Telemetry(robot=self.name, seq=seq, robot_time_us=t_us, host_time_ns=now_ns,
                             enc_left=tel.enc_left, enc_right=tel.enc_right,
-                            speed_left=float(np.clip(self._speeds[0], -100, 100)),
-                            speed_right=float(np.clip(self._speeds[1], -100, 100)),
-                            accel=tel.accel_si, gyro=tel.gyro_si, mag=tel.mag_si, battery_mv=tel.battery_mv,
+                            speed_left=min(100.0, max(-100.0, float(self._speeds[0]))),
+                            speed_right=min(100.0, max(-100.0, float(self._speeds[1]))),
+                            accel=accel, gyro=gyro, mag=mag, battery_mv=tel.battery_mv,
                             power_left=tel.motor_left, power_right=tel.motor_right, mission=mission, phase=phase)
             self.publish(self.name, msg)
             self.published += 1
 
-    def _control(self, tel: P.Telemetry, now_ns: int, t_us: int) -> str:
-        """One control step of the running mission (lock held); returns the phase."""
+    def _control(self, tel: P.Telemetry, now_ns: int, t_us: int, gyro_z: float) -> str:
+        """One control step of the running mission (lock held); returns the phase.
+        ``gyro_z``: the telemetry's yaw rate, rad/s."""
         runner = self.runner
         if self.start_at_ns is not None and now_ns < self.start_at_ns:
             self.estimator.add_odometry(now_ns / 1e9, self.odometry.update(
-                tel.enc_left, tel.enc_right, tel.gyro_si[2], t_us / 1e6))
+                tel.enc_left, tel.enc_right, gyro_z, t_us / 1e6))
             return "waiting"
         if self.estop:
             self._end_mission("e-stop")
@@ -358,7 +360,7 @@ class RobotHandle:
             return "low battery"
         try:
             out = runner.update(now_ns / 1e9, tel.enc_left, tel.enc_right, t_robot=t_us / 1e6,
-                                gyro_z=tel.gyro_si[2])
+                                gyro_z=gyro_z)
         except Exception as exc:  # noqa: BLE001 - a mission bug must stop the robot, not the bridge
             log.exception("robot %s: mission crashed", self.name)
             self._end_mission(f"failed: mission crashed: {exc!r}")
