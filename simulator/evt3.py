@@ -40,10 +40,19 @@ TIME_WRAP_US = 1 << 24
 def canonical_order(events: np.ndarray) -> np.ndarray:
     """Events reordered as the encoder emits them: by t, then y, p, x (a stable view for
     comparing with decoded streams)."""
-    return events[np.lexsort((events["x"], events["p"], events["y"], events["t"]))]
+    if len(events) == 0:
+        return events
+    t = events["t"].astype(np.int64)
+    x, y = events["x"].astype(np.int64), events["y"].astype(np.int64)
+    if t.min() < 0 or t.max() >= 1 << 40 or x.max() > 0x7FF or y.max() > 0x7FF:
+        return events[np.lexsort((events["x"], events["p"], events["y"], events["t"]))]
+    # one packed key sorts ~3x faster than a 4-key lexsort (the simulator's camera runs this
+    # on every 10 ms block): t (40 bits) | y (11) | p (1) | x (11)
+    key = (t << 23) | (y << 12) | (events["p"].astype(np.int64) << 11) | x
+    return events[np.argsort(key, kind="stable")]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _encode(x, y, p, t, state, out):
     """Encode events sorted by (t, y, p, x) into ``out`` (uint16); returns words written.
 
@@ -125,7 +134,7 @@ def _encode(x, y, p, t, state, out):
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _time_high_fill(t_to, state, out):
     """Emit the TIME_HIGH words of the periods up to time ``t_to`` (µs) that had no event."""
     w = 0

@@ -38,6 +38,7 @@ FIRMWARE_VERSION = 1
 WATCHDOG_S = 0.300
 LOW_BATTERY_MV = 4400
 _TICK_S = 0.002
+_MAX_SLEEP_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -402,4 +403,19 @@ class RobotEmulatorServer:
                 while self._tx_queue and self._tx_queue[0][0] <= now:
                     _, _, data, c = heapq.heappop(self._tx_queue)
                     self._write(c, data)
-            self._stop.wait(max(0.0, min(_TICK_S, next_tel - time.monotonic())))
+            self._stop.wait(self._sleep_s(next_tel))
+
+    def _sleep_s(self, next_tel: float) -> float:
+        """How long the main loop may sleep: until the next telemetry, the watchdog deadline
+        or a fault's deadline; one tick while delayed bytes wait in the latency queues. (A
+        fixed 2 ms tick woke four robots 2000 times a second and slowed the demo's simulator.)"""
+        now = time.monotonic()
+        until = min(next_tel, now + _MAX_SLEEP_S)   # commands and faults may change meanwhile
+        if self._rx_queue or self._tx_queue or self.faults.latency_ms or self.faults.jitter_ms:
+            until = min(until, now + _TICK_S)
+        if self._motors != (0, 0):
+            until = min(until, self._last_motor_cmd + WATCHDOG_S + 0.001)
+        conn = self._conn
+        if conn is not None and self.faults.disconnect_after_s is not None:
+            until = min(until, conn.opened + self.faults.disconnect_after_s)
+        return max(0.0, until - now)

@@ -152,3 +152,15 @@ def test_camera_server_survives_a_client_that_goes_away():
             ev = ev[100:]
             time.sleep(0.05)
         assert cam.n_clients == 0
+
+
+def test_canonical_order_is_t_then_y_p_x_for_any_events():
+    # the packed-key sort must equal the 4-key lexsort, duplicates and out-of-range values too
+    rng = np.random.default_rng(3)
+    for hi_x, t_hi in ((640, 20_000), (640, 1 << 41), (4096, 20_000)):
+        n = 5000
+        ev = make_events(rng.integers(0, hi_x, n), rng.integers(0, 480, n), rng.integers(0, 2, n),
+                         np.sort(rng.integers(0, t_hi, n)))
+        ev = np.concatenate([ev, ev[:300]])[rng.permutation(n + 300)]
+        ref = ev[np.lexsort((ev["x"], ev["p"], ev["y"], ev["t"]))]
+        assert np.array_equal(canonical_order(ev), ref)
