@@ -181,7 +181,7 @@ def run(args) -> int:
     from simulator.dvs import DvsParams
     from simulator.evt3 import CameraServer, stream_header
     from simulator.recording import RawWriter, TruthCsvWriter
-    from simulator.simulation import Simulation
+    from simulator.simulation import Simulation, warm_up
     from simulator.world import World
 
     specs, opts = _robots_from_args(args)
@@ -194,7 +194,9 @@ def run(args) -> int:
     if args.autopilot != "none":
         pilot = Autopilot(world, make_plans(args.autopilot, len(specs), world.arena_m,
                                             args.duration or 1e9), args.power)
-    sim = Simulation(world, camera, DvsParams(flicker_hz=args.flicker), pilot, seed=args.seed + 1)
+    dvs = DvsParams(flicker_hz=args.flicker)
+    warm_up(world, camera, dvs)   # compile before serving: no stall once the robots' links are up
+    sim = Simulation(world, camera, dvs, pilot, seed=args.seed + 1)
     stop = {"flag": False}
 
     def _terminate(signum, frame):

@@ -132,7 +132,7 @@ def _reflectance(u, v, ax, ay, bg, state, app, markers, members, n_members, pix_
     return refl
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _merge_boxes(boxes, owner):
     """Merge overlapping boxes in place; ``owner[i]`` = index of the box robot i ends in.
     Returns the number of boxes left (compacted to the front)."""
@@ -172,7 +172,7 @@ def _merge_boxes(boxes, owner):
     return m
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
                hom, nadir_x, nadir_y, top_scale, ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
                min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,
@@ -369,7 +369,7 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     return done, n, hist_i
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sort_segment(ox, oy, op, ot, a, b):
     """Sort events a..b-1 of the column buffers by time (stable)."""
     order = np.argsort(ot[a:b], kind="mergesort")
@@ -385,7 +385,7 @@ def _sort_segment(ox, oy, op, ot, a, b):
         ot[a + i] = tt[k]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _merge(sx, sy, sp, st, nx, ny, np_, nt, out, is_sig):
     """Merge time-sorted signal and noise columns into ``out`` (EVENT_DTYPE) and labels."""
     i = 0

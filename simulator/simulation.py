@@ -72,3 +72,21 @@ class Simulation:
         ev, sig = self.sensor.advance(poses, times)
         truth = np.concatenate(rows) if rows else np.zeros(0, TRUTH_DTYPE)
         return ev, sig, truth
+
+
+def warm_up(world: World, camera: CeilingCamera, dvs: DvsParams | None = None) -> None:
+    """Step a throw-away copy of ``world`` (same robots, lighting and camera, robots driving)
+    for a few milliseconds and encode its events, so every numba kernel of the physics, the
+    pixel model and the EVT 3.0 stream is compiled (or loaded from numba's on-disk cache)
+    before ``arena sim`` says "running". On a fresh install that takes ~10 s of CPU, during
+    which a running simulator would stall its robots' serial links and its camera."""
+    from simulator.evt3 import Evt3Encoder
+
+    twin = World(world.robots, arena_m=world.arena_m, lighting=world.lighting, seed=world.seed)
+    for i in range(len(twin.robots)):
+        twin.set_power(i, 400, 300)
+    sim = Simulation(twin, camera, dvs, seed=0)
+    enc = Evt3Encoder()
+    for _ in range(3):
+        ev, _, _ = sim.run(10)
+        enc.encode(ev, until_us=sim.t_us)

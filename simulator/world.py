@@ -45,7 +45,7 @@ EARTH_FIELD_UT = np.array([0.0, 20.0, -44.0])
 LIGHTING_LEVELS = ("full", "dimmed", "dark")
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _physics_step(h, pose, vtread, power, gain, tau, chi0, lat_slip, track, vmax, half, arena_m,
                   vel, acc_body, travel, energy, noise, deadband, noise_sigma):
     """Advance every robot by ``h`` s (see the module docstring for the model)."""

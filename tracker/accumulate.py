@@ -21,7 +21,7 @@ __all__ = ["PixelWindow"]
 _REBASE_S = 20.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_active):
     """Add (sign=+1) or remove (sign=-1) events. Statistics live in slots 0..n_active-1
     (contiguous); ``slot[pixel]`` is the pixel's slot or -1, ``active[slot]`` its pixel."""
@@ -64,7 +64,7 @@ def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_a
     return n_active
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _coords(active, n_active, width):
     u = np.empty(n_active, dtype=np.int64)
     v = np.empty(n_active, dtype=np.int64)

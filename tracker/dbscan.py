@@ -93,7 +93,7 @@ def _grid(u, v, eps, min_samples):
     return _grid_kernel(u, v, eps * eps, int(min_samples), cell, reach)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find(parent, i):
     root = i
     while parent[root] != root:
@@ -105,7 +105,7 @@ def _find(parent, i):
     return root
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _union(parent, a, b):
     ra = _find(parent, a)
     rb = _find(parent, b)
@@ -117,7 +117,7 @@ def _union(parent, a, b):
         parent[ra] = rb
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cells_touch(pu, pv, core, s0, s1, t0, t1, eps2):
     """True when a core pixel of cell [s0, s1) is within eps of one of [t0, t1)."""
     for a in range(s0, s1):
@@ -133,7 +133,7 @@ def _cells_touch(pu, pv, core, s0, s1, t0, t1, eps2):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _grid_kernel(u, v, eps2, min_samples, cell, reach):
     n = u.shape[0]
     umin = u.min()

@@ -87,7 +87,7 @@ class Detection:
 # --------------------------------------------------------------------------- pixels
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pixelize(x, y, scratch, width):
     """Unique pixels of events: returns (u, v, count, ev_pix). ``scratch`` (int32,
     width*height, all -1) is restored to -1 before returning."""
@@ -247,7 +247,7 @@ def _poisson_quantile(lam: float, tail: float) -> int:
     return k + 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cluster_moments(labels, pu, pv, cnt, st, st2, k):
     """Per cluster sums over its pixels' events: n, t, t2, x, y, xt, yt, x2, y2 and the
     bounding box umin, umax, vmin, vmax (px; t in s from the window's origin)."""
@@ -280,7 +280,7 @@ def _cluster_moments(labels, pu, pv, cnt, st, st2, k):
     return s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
     """Per cluster, sum of count * z^order / |z|^(order-2) with z = (u - cx) + i (v - cy)
     (order 2 or 4), and the sum of count * |z|^2 (the normaliser): the shape's order-fold
@@ -309,7 +309,7 @@ def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
     return re, im, nz
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pixel_stats(ev_pix, m, t, p, t_ref):
     """Per-pixel count, ON count, sum of t and of t^2 (t in s from t_ref)."""
     cnt = np.zeros(m, dtype=np.int64)
@@ -497,7 +497,7 @@ class Detector:
         return (labels if out is None else out), k
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _disk_size(eps):
     """Number of integer pixels within eps of a pixel (itself included)."""
     r = int(eps)
