@@ -208,3 +208,15 @@ def test_shell_tops_appear_displaced_outwards_by_parallax():
     assert np.linalg.norm(top.mean(0) - centre) > np.linalg.norm(floor.mean(0) - centre)
     # events are centred on the top projection, not on the floor projection
     assert np.linalg.norm(mean_uv - top.mean(0)) < np.linalg.norm(mean_uv - floor.mean(0))
+
+
+def test_warm_up_leaves_the_served_world_untouched():
+    # `arena sim` compiles on a twin before serving: the real robots must not move or age
+    from simulator.simulation import warm_up
+    from simulator.world import World
+    world = World([RobotSpec("a", BLACK, start=(0.5, 0.5, 0.0)), RobotSpec("b", BLACK, start=(1.2, 1.0, 1.0))])
+    before = world.poses().copy()
+    warm_up(world, CeilingCamera(320, 240), DvsParams())
+    assert world.t == 0.0
+    assert np.array_equal(world.poses(), before)
+    assert world.power(0) == (0, 0) and world.power(1) == (0, 0)
