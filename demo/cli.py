@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 import math
+import subprocess
 import sys
 import time
 from datetime import datetime
@@ -129,6 +130,7 @@ def run(args) -> int:
     code = 0
     calib = run_dir / "cam0.calib.json"
     try:
+        _compile_kernels(sup)
         # router, simulator, recorder and scorer start together (each waits for the router); the
         # services that need the simulator's devices or calibration follow once it runs. Every
         # process imports numpy/numba/OpenCV (seconds of CPU), so overlapping them is what makes
@@ -201,6 +203,31 @@ def run(args) -> int:
     if code == 0 and not summary.get("ok", False):
         code = 1
     return code
+
+
+def _compile_kernels(sup: Supervisor) -> None:
+    """On the first run after installing, compile the numba kernels of the simulator and of the
+    edge and tracker in two processes side by side (~20 s on 2 cores) before any service starts:
+    left to the services, the compiles competed with each other and with the running simulator,
+    and the first track came after about a minute. Later runs load them from numba's cache."""
+    from demo.warmup import PARTS, kernels_cached
+
+    if kernels_cached():
+        return
+    print("first run after installing: compiling the numba kernels once (about 20 s on 2 cores; "
+          "later runs skip this)", flush=True)
+    t0 = time.monotonic()
+    procs = [sup.start(ProcSpec(f"cmd-compile-{part}", [sys.executable, "-m", "demo.warmup", part]), wait=False)
+             for part in PARTS]
+    for proc in procs:
+        try:
+            proc.popen.wait(timeout=600)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"compiling the kernels took over 10 minutes; see {proc.log_path}") from None
+        if proc.popen.returncode != 0:
+            raise RuntimeError(f"compiling the kernels failed ({proc.spec.name} exited with "
+                               f"{proc.popen.returncode}); see {proc.log_path}")
+    print(f"kernels compiled in {time.monotonic() - t0:.0f} s", flush=True)
 
 
 class _AliveSet:

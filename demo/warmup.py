@@ -1,0 +1,82 @@
+"""Compile the demo's numba kernels once, in two processes side by side, before its services start.
+
+On the first run after installing, numba compiles every kernel (about 20 s of CPU for the
+simulator's pixel model, 20 s for the edge and the tracker). Left to the services, that work
+competes with the running simulator and with itself on a 2-core machine, and the first track
+came after about a minute. Compiled here first, on both cores and with nothing else running,
+the services then load the kernels from numba's on-disk cache in a fraction of a second.
+
+``python -m demo.warmup sim|services`` compiles one half and prints ``compiled in N s``.
+:func:`kernels_cached` tells the demo whether it is needed at all (without importing numba).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+import time
+from pathlib import Path
+
+#: one kernel per module the demo compiles: "package.module:function"
+KERNELS = ("simulator.dvs:_dvs_block", "simulator.world:_physics_step", "simulator.evt3:_encode",
+           "arena.formats.evt3:_decode", "arena.codec:_encode_planes", "arena.codec:_decode_planes",
+           "tracker.dbscan:_grid_kernel", "tracker.accumulate:_apply", "tracker.detect:_cluster_moments")
+
+
+def kernels_cached(kernels: tuple[str, ...] = KERNELS) -> bool:
+    """True when numba's cache holds an index for every kernel in ``kernels`` (so the demo can
+    skip compiling). Looks for the files only; a stale index just compiles as before."""
+    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
+    for kernel in kernels:
+        module, func = kernel.split(":")
+        pkg, _, leaf = module.rpartition(".")
+        spec = importlib.util.find_spec(pkg)
+        if spec is None or not spec.submodule_search_locations:
+            return False
+        where = Path(cache_dir) if cache_dir else Path(list(spec.submodule_search_locations)[0]) / "__pycache__"
+        pattern = f"{leaf}.{func}-*.nbi"
+        if not any(where.rglob(pattern) if cache_dir else where.glob(pattern)):
+            return False
+    return True
+
+
+def compile_sim() -> None:
+    from simulator.camera import CeilingCamera
+    from simulator.dvs import DvsParams
+    from simulator.simulation import warm_up
+    from simulator.world import RobotSpec, World
+
+    robots = [RobotSpec(f"r{i}", (25, 25, 25), start=(0.4 + 0.3 * i, 0.6, 0.0)) for i in range(2)]
+    warm_up(World(robots), CeilingCamera(640, 480), DvsParams())
+
+
+def compile_services() -> None:
+    from arena.codec import DEFAULT_CODEC
+    from camera_edge.pipeline import warm_up as warm_edge
+    from simulator.camera import CeilingCamera
+    from tracker.calibration import Calibration
+    from tracker.pipeline import Pipeline
+    from tracker.pipeline import warm_up as warm_tracker
+
+    warm_edge(list, 640, 480, DEFAULT_CODEC)
+    cal = Calibration.from_dict(CeilingCamera(640, 480).calibration(), "the simulated camera")
+    warm_tracker(lambda: Pipeline(cal, fleet_size=4))
+
+
+PARTS = {"sim": compile_sim, "services": compile_services}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 1 or argv[0] not in PARTS:
+        print(f"usage: python -m demo.warmup {'|'.join(PARTS)}", file=sys.stderr)
+        return 2
+    t0 = time.monotonic()
+    PARTS[argv[0]]()
+    print(f"compiled {argv[0]} kernels in {time.monotonic() - t0:.1f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
