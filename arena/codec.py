@@ -28,12 +28,8 @@ import numpy as np
 import zstandard
 from numba import njit
 
+from arena.codec_names import CODECS, DEFAULT_CODEC, LOSSY_CODEC, RAW_CODEC  # noqa: F401 (re-exported)
 from arena.events import EVENT_DTYPE
-
-DEFAULT_CODEC = "planes-zstd/1"
-LOSSY_CODEC = "planes-zstd-ms/1"
-RAW_CODEC = "raw/1"
-CODECS = (DEFAULT_CODEC, LOSSY_CODEC, RAW_CODEC)
 
 _HEADER = struct.Struct("<4sIqIIIIII")
 _MAGIC = b"EVW1"

@@ -8,7 +8,7 @@ import logging
 import os
 import sys
 
-from arena.codec import CODECS, DEFAULT_CODEC
+from arena.codec_names import CODECS, DEFAULT_CODEC
 
 log = logging.getLogger("camera_edge")
 

@@ -23,7 +23,6 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .missions import Mission, Segment
 from .odometry import Odometry, WheelGeometry, wrap_angle
@@ -527,6 +526,7 @@ def path_error(traced: np.ndarray, commanded: np.ndarray, step_m: float = 0.001)
         f = np.arange(1, n + 1)[:, None] / n
         dense.append(a + f * (b - a))
     dense = np.concatenate(dense)
+    from scipy.spatial import cKDTree   # here, not at import: half a second off the bridge's start-up
     d, _ = cKDTree(dense).query(traced)
     cov, _ = cKDTree(traced).query(commanded)
     return PathError(float(d.mean()), float(d.max()), float(np.sqrt((d ** 2).mean())), float(cov.mean()), len(traced))

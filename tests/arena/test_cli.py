@@ -121,3 +121,13 @@ def test_a_service_started_before_its_router_waits_for_it_then_runs(tmp_path):
     assert proc.returncode == 0, stderr
     assert "waiting for Zenoh" in stderr
     assert out.stat().st_size > 0
+
+
+def test_services_without_kernels_start_without_numba_or_scipy():
+    # importing numba (~0.4 s) or scipy.spatial (~0.5 s) in every process slowed the demo's
+    # start-up on 2 cores by seconds; the router, bridge, ground truth and recorder need neither
+    code = ("import sys, arena.cli, robot_bridge.cli, robot_bridge.service, groundtruth.cli, "
+            "recorder.cli, recorder.service; "
+            "print(sorted(m for m in ('numba', 'scipy.spatial') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
