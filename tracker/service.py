@@ -206,6 +206,11 @@ class LiveTracker:
                 self._count("windows_dropped_at_edge", at_edge)
             if gap - at_edge:
                 self._count("windows_missed", gap - at_edge)
+                # a window that waited about as long as our queue holds means the queue overflowed;
+                # a fresh one means the missing windows were lost on the way
+                waited = (now_ns - win.publish_ns) / 1e6 if win.publish_ns else float("nan")
+                log.warning("camera %s: %d window(s) before seq %d missing (not dropped by the edge); "
+                            "this one was published %.0f ms ago", self.camera, gap - at_edge, win.seq, waited)
         self.last_seq = win.seq
         self._last_dropped = win.dropped
         if events.size and (int(events["t"][0]) < win.t_start_us or int(events["t"][-1]) >= win.t_end_us):
