@@ -135,15 +135,18 @@ def main(argv=None) -> int:
     ap.add_argument("--track-noise-cm", type=float, default=0.5, help="track position noise, 1 sigma, cm")
     ap.add_argument("--track-yaw-noise-deg", type=float, default=3.0, help="track heading noise, 1 sigma, deg")
     ap.add_argument("--track-hz", type=float, default=100.0, help="track rate, Hz")
+    ap.add_argument("--telemetry-hz", type=float, default=50.0,
+                    help="robot telemetry (= control) rate, Hz (default 50, the reference firmware's)")
     ap.add_argument("--tracker", action="store_true",
                     help="closed loop on the real tracker fed by the simulated event camera (slower)")
     args = ap.parse_args(argv)
     cases = [("circle", {"radius_m": 0.3}), ("square", {"side_m": 0.6})]
     if args.tracker:
-        print(f"link {args.link_ms:.0f} ms, closed loop on tracker.pipeline tracks from the simulated DVS; "
-              f"{args.seeds} seed(s)")
+        print(f"link {args.link_ms:.0f} ms, telemetry {args.telemetry_hz:.0f} Hz, closed loop on tracker.pipeline "
+              f"tracks from the simulated DVS; {args.seeds} seed(s)")
     else:
-        print(f"link {args.link_ms:.0f} ms, tracks {args.track_hz:.0f} Hz delayed {args.track_delay_ms:.0f} ms, "
+        print(f"link {args.link_ms:.0f} ms, telemetry {args.telemetry_hz:.0f} Hz, tracks {args.track_hz:.0f} Hz "
+              f"delayed {args.track_delay_ms:.0f} ms, "
               f"noise {args.track_noise_cm} cm / {args.track_yaw_noise_deg} deg; {args.seeds} seed(s)")
     print(f"{'mission':<22}{'power':>6}  {'paper mean cm':>14}{'closed mean cm':>16}{'ratio':>8}"
           f"  {'paper max':>10}{'closed max':>11}{'no-track mean':>15}")
@@ -154,7 +157,7 @@ def main(argv=None) -> int:
             for mode in ("paper", "closed", "no-track"):
                 # no-track: closed loop on gyro-aided odometry alone (tracks too old to use)
                 errs = [simulate(pattern, params, power, "closed" if mode == "no-track" else mode, seed=s,
-                                 link_ms=args.link_ms, track_hz=args.track_hz,
+                                 link_ms=args.link_ms, track_hz=args.track_hz, telemetry_hz=args.telemetry_hz,
                                  track_delay_ms=1e5 if mode == "no-track" else args.track_delay_ms,
                                  track_noise_m=args.track_noise_cm / 100,
                                  track_yaw_noise_rad=math.radians(args.track_yaw_noise_deg),

@@ -87,6 +87,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot-base-port", type=int, default=9100,
                    help="robot i listens on BASE+i (0 = free ports; lab socket:// URLs win)")
     p.add_argument("--no-robots", action="store_true", help="do not serve the robot firmware links")
+    p.add_argument("--telemetry-hz", type=float, default=50.0,
+                   help="robot telemetry rate, Hz (default 50, as the reference firmware over Bluetooth)")
     p.add_argument("--duration", type=float, default=0.0, metavar="S",
                    help="stop after S simulated seconds (default 0: until Ctrl-C)")
     p.add_argument("--fast", action="store_true",
@@ -161,6 +163,8 @@ def _check_args(args) -> None:
         raise SystemExit(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
     if args.duration < 0:
         raise SystemExit(f"arena sim: --duration must be >= 0, got {args.duration}")
+    if not 1 <= args.telemetry_hz <= 1000:
+        raise SystemExit(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
     for name in ("camera_port", "webcam_port", "robot_base_port"):
         v = getattr(args, name)
         if v is not None and not 0 <= v <= 65535:
@@ -254,6 +258,7 @@ def _start_robots(stack: ExitStack, world, args, opts) -> None:
         port = opts["robot_ports"].get(i, args.robot_base_port + i if args.robot_base_port else 0)
         try:
             emu = RobotEmulatorServer(world, i, host=args.host, port=port, seed=args.seed + 100 + i,
+                                      telemetry_hz=args.telemetry_hz,
                                       clock=lambda: world.t)   # the robots' clocks run with the physics
             stack.enter_context(emu)
         except OSError as e:
