@@ -1,7 +1,8 @@
 """The live tracker: ``arena/events/<camera>`` in, ``arena/robots/<id>`` out.
 
-- Event windows arrive in a bounded zenoh ``RingChannel`` (keeps the newest ``queue``
-  slices, so a lagging tracker drops the oldest and never works on stale data); one worker
+- Event windows arrive in a bounded :class:`Inbox` (keeps the newest ``queue`` slices, so a
+  lagging tracker drops the oldest, counted as ``windows_dropped_in_queue``, and never works on
+  stale data; the worker sleeps until a window arrives instead of polling); one worker
   (the main thread) decodes them with :func:`arena.codec.decode` and feeds the
   :class:`tracker.pipeline.Pipeline` in time order. A slice that does not decode, does not
   fit the calibrated sensor or is not newer than the last one is counted and skipped.
@@ -11,7 +12,8 @@
   answers with the current fleet; tracks can also be logged to CSV.
 - Presence and once-a-second status through :class:`arena.service.Service`: counters
   ``windows_in``, ``windows_bad``, ``windows_late``, ``windows_missed`` (sequence gaps not
-  explained by the edge's own ``dropped`` count, which go to ``windows_dropped_at_edge``),
+  explained by the edge's own ``dropped`` count, which go to ``windows_dropped_at_edge``, nor by
+  our own full queue, ``windows_dropped_in_queue``: windows lost on the way),
   ``tracks_out``, ``stream_restarts`` (the camera's clock jumped back by > 1 s: a replay
   looping; tracking starts afresh); gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
   track publish, host clocks).
@@ -29,6 +31,7 @@ import logging
 import os
 import threading
 import time
+from collections import deque
 from pathlib import Path
 
 import zenoh
@@ -41,7 +44,7 @@ from tracker.pipeline import Pipeline, TrackCsvWriter, warm_up
 
 log = logging.getLogger("tracker")
 
-__all__ = ["LiveTracker", "run_live", "default_state_path", "save_state", "load_state"]
+__all__ = ["LiveTracker", "Inbox", "run_live", "default_state_path", "save_state", "load_state"]
 
 
 def default_state_path(name: str) -> Path:
@@ -166,8 +169,9 @@ class LiveTracker:
             if n >= self.NAME_VOTES and not any(m.track_id == best and m.robot == robot for m in self.fleet.values()):
                 self._pending_names[best] = robot
 
-    def handle(self, payload: bytes, now_ns: int) -> list[tuple[str, Track, TrackedRobot]]:
-        """Process one event-window payload; returns ``(key, message, track)`` to publish."""
+    def handle(self, payload: bytes, now_ns: int, dropped_in_queue: int = 0) -> list[tuple[str, Track, TrackedRobot]]:
+        """Process one event-window payload; returns ``(key, message, track)`` to publish.
+        ``dropped_in_queue``: windows our own full queue dropped since the previous call."""
         with self.lock:
             pending, self._pending_names = self._pending_names, {}
         namer = getattr(self.pipeline.tracker, "set_robot_name", None)
@@ -204,13 +208,16 @@ class LiveTracker:
             at_edge = min(gap, max(0, win.dropped - self._last_dropped)) if self._last_dropped is not None else 0
             if at_edge:
                 self._count("windows_dropped_at_edge", at_edge)
-            if gap - at_edge:
-                self._count("windows_missed", gap - at_edge)
-                # a window that waited about as long as our queue holds means the queue overflowed;
-                # a fresh one means the missing windows were lost on the way
+            here = min(gap - at_edge, dropped_in_queue)
+            if here:
+                log.warning("camera %s: tracker queue full, %d window(s) before seq %d dropped",
+                            self.camera, here, win.seq)
+            if gap - at_edge - here:
+                self._count("windows_missed", gap - at_edge - here)
                 waited = (now_ns - win.publish_ns) / 1e6 if win.publish_ns else float("nan")
-                log.warning("camera %s: %d window(s) before seq %d missing (not dropped by the edge); "
-                            "this one was published %.0f ms ago", self.camera, gap - at_edge, win.seq, waited)
+                log.warning("camera %s: %d window(s) before seq %d lost on the way (neither the edge nor "
+                            "our queue dropped them); this one was published %.0f ms ago",
+                            self.camera, gap - at_edge - here, win.seq, waited)
         self.last_seq = win.seq
         self._last_dropped = win.dropped
         if events.size and (int(events["t"][0]) < win.t_start_us or int(events["t"][-1]) >= win.t_end_us):
@@ -316,7 +323,8 @@ def run_live(args) -> int:
             queryable = session.declare_queryable("arena/robots/*", on_query)
             gt_sub = (session.declare_subscriber("arena/groundtruth/*", on_groundtruth)
                       if args.names_from_groundtruth else None)
-            sub = session.declare_subscriber(events_key(args.camera), zenoh.handlers.RingChannel(max(1, args.queue)))
+            inbox = Inbox(max(1, args.queue))
+            sub = session.declare_subscriber(events_key(args.camera), lambda sample: inbox.put(sample.payload.to_bytes()))
             log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(args.camera),
                      args.tracker, args.detector)
             try:
@@ -324,11 +332,12 @@ def run_live(args) -> int:
                     if state_path is not None and time.monotonic() >= next_save:
                         next_save = time.monotonic() + 1.0
                         _save_state(live, state_path, svc)
-                    sample = sub.try_recv()
-                    if sample is None:
-                        time.sleep(0.001)
+                    payload, dropped = inbox.get(timeout=0.2)
+                    if dropped:
+                        svc.count("windows_dropped_in_queue", dropped)
+                    if payload is None:
                         continue
-                    out = live.handle(sample.payload.to_bytes(), time.time_ns())
+                    out = live.handle(payload, time.time_ns(), dropped)
                     for key, msg, tr in out:
                         pub = publishers.get(key)
                         if pub is None:
@@ -360,6 +369,36 @@ def run_live(args) -> int:
         if csv_file is not None:
             csv_file.close()
     return 0
+
+
+class Inbox:
+    """Bounded FIFO between Zenoh's callback thread and the worker: when full, the oldest item
+    is dropped and counted (a lagging tracker catches up on fresh data), and the worker sleeps
+    until an item arrives (polling a ``RingChannel`` woke it a thousand times a second)."""
+
+    def __init__(self, size: int):
+        self.size = int(size)
+        self._items: deque = deque()
+        self._dropped = 0
+        self._cv = threading.Condition()
+
+    def put(self, item) -> None:
+        with self._cv:
+            if len(self._items) >= self.size:
+                self._items.popleft()
+                self._dropped += 1
+            self._items.append(item)
+            self._cv.notify()
+
+    def get(self, timeout: float) -> tuple[object | None, int]:
+        """The oldest item (None after ``timeout`` s without one) and how many were dropped
+        since the previous call."""
+        with self._cv:
+            if not self._items:
+                self._cv.wait(timeout)
+            item = self._items.popleft() if self._items else None
+            dropped, self._dropped = self._dropped, 0
+            return item, dropped
 
 
 def _restore_state(live: LiveTracker, path: Path, max_age_s: float, svc) -> None:

@@ -9,7 +9,7 @@ from arena.messages import EventWindow
 from tests.tracker.synth import calibration_dict, line_pose, window
 from tracker.calibration import Calibration
 from tracker.pipeline import Pipeline
-from tracker.service import LiveTracker
+from tracker.service import Inbox, LiveTracker
 
 
 def make():
@@ -137,8 +137,29 @@ def test_sequence_gaps_are_split_into_edge_drops_and_windows_lost_on_the_way():
             continue
         if k in (20, 21):            # these two were lost after the edge published them
             continue
+        if k in (25, 26, 27):        # our own full queue dropped these three (the inbox says so)
+            continue
         w = win(ev, k)
         w.dropped = dropped
-        live.handle(w.encode(), now_ns=5)
+        live.handle(w.encode(), now_ns=5, dropped_in_queue=3 if k == 28 else 0)
     assert svc.c.get("windows_dropped_at_edge") == 3
     assert svc.c.get("windows_missed") == 2
+
+
+def test_inbox_keeps_the_newest_counts_what_it_dropped_and_wakes_the_worker():
+    import threading
+    import time
+
+    box = Inbox(3)
+    for i in range(5):
+        box.put(i)
+    assert box.get(0.01) == (2, 2)          # 0 and 1 dropped, the oldest kept one comes first
+    assert box.get(0.01) == (3, 0)
+    assert box.get(0.01) == (4, 0)
+    t0 = time.monotonic()
+    assert box.get(0.05) == (None, 0)      # empty: returns after the timeout
+    assert time.monotonic() - t0 >= 0.04
+    threading.Timer(0.05, box.put, args=("late",)).start()
+    t0 = time.monotonic()
+    assert box.get(5.0) == ("late", 0)     # woken by the put, not by the timeout
+    assert time.monotonic() - t0 < 2.0
