@@ -30,6 +30,30 @@ def make_events(x, y, p, t) -> np.ndarray:
     return ev
 
 
+def concat_events(parts: list[np.ndarray]) -> np.ndarray:
+    """Concatenate event arrays. Contiguous arrays of one dtype are joined as bytes: numpy 2's
+    ``concatenate`` of structured arrays spends ~70 µs per call promoting the fields, more than
+    the edge's whole per-window budget for slicing."""
+    if not parts:
+        return empty_events(0)
+    if len(parts) == 1:
+        return parts[0]
+    dtype = parts[0].dtype
+    if all(p.dtype == dtype and p.ndim == 1 and p.flags.c_contiguous for p in parts):
+        return np.concatenate([p.view(np.uint8) for p in parts]).view(dtype)
+    return np.concatenate(parts)
+
+
+def select_events(events: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """``events[keep]`` for a boolean mask, ~8x faster on a contiguous array: the records are
+    selected as opaque fixed-size blobs (numpy 2's structured boolean indexing takes ~30 ns per
+    event, a filter's whole budget)."""
+    if events.ndim == 1 and events.flags.c_contiguous and events.dtype.names:
+        blob = np.dtype((np.void, events.dtype.itemsize))
+        return events.view(blob)[keep].view(events.dtype)
+    return events[keep]
+
+
 def as_events(arr: np.ndarray) -> np.ndarray:
     """Convert any structured array with fields x, y, p, t to :data:`EVENT_DTYPE`."""
     if arr.dtype == EVENT_DTYPE:

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from arena.events import select_events
+
 
 class EventFilter:
     """Base: ``__call__(events) -> kept events``; ``n_in``/``n_out`` count events."""
@@ -48,7 +50,7 @@ def _lookup(xs, ys, mask, keep, want):
 def _select(events: np.ndarray, mask: np.ndarray, want: bool) -> np.ndarray:
     keep = np.empty(events.size, np.bool_)
     _lookup(events["x"], events["y"], mask, keep, want)
-    return events[keep]
+    return select_events(events, keep)
 
 
 @njit(cache=True, nogil=True)
@@ -173,7 +175,7 @@ class BackgroundActivityFilter(EventFilter):
     def _apply(self, events: np.ndarray) -> np.ndarray:
         keep = np.empty(events.size, np.bool_)
         _ba_filter(events["x"], events["y"], events["t"], self._last, self.dt_us, keep)
-        return events[keep]
+        return select_events(events, keep)
 
 
 class RoiFilter(EventFilter):

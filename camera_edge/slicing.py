@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from arena.events import empty_events
+from arena.events import concat_events, empty_events
 
 
 @dataclass
@@ -60,8 +60,7 @@ class Slicer:
             self._start += self.slice_us
 
     def _take(self) -> Slice:
-        ev = (self._parts[0] if len(self._parts) == 1 else np.concatenate(self._parts)) if self._parts \
-            else empty_events(0)
+        ev = concat_events(self._parts)
         self._parts = []
         s = Slice(self._start, self._start + self.slice_us, ev)
         self._start += self.slice_us

@@ -155,11 +155,8 @@ class PixelWindow:
 
     def events(self) -> np.ndarray:
         """The window's events, concatenated (sorted by t when the slices were)."""
-        parts = [ev for _, ev in self._slices]
-        if not parts:
-            from arena.events import empty_events
-            return empty_events(0)
-        return np.concatenate(parts)
+        from arena.events import concat_events
+        return concat_events([ev for _, ev in self._slices])
 
     def pixels(self):
         """Active pixels: (u, v, count, on_count, sum_t, sum_t2) arrays; times in s from ``t_ref_us``."""

@@ -19,6 +19,7 @@ from typing import IO
 
 import numpy as np
 
+from arena.events import concat_events
 from tracker.accumulate import PixelWindow
 from tracker.calibration import Calibration
 from tracker.detect import Detection, Detector, DetectorConfig, PaperConfig, PaperDetector
@@ -182,7 +183,7 @@ def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | Non
         if t0 is None:
             t0 = int(chunk["t"][0])
         pending.append(chunk)
-        buf = np.concatenate(pending) if len(pending) > 1 else pending[0]
+        buf = concat_events(pending)
         last = int(buf["t"][-1])
         # slices that are complete: end <= last event time
         n_done = (last - t0) // slice_us
@@ -199,7 +200,7 @@ def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | Non
         rest = buf[prev:]
         pending = [rest[rest["t"] >= t0]]
     if pending and t0 is not None:
-        buf = np.concatenate(pending) if len(pending) > 1 else pending[0]
+        buf = concat_events(pending)
         if buf.size:
             yield t0 + slice_us, buf
 

@@ -109,3 +109,26 @@ def test_pipeline_counts_filtered_events_per_window():
     wins = p.push(ev) + p.flush()
     assert [(w.events.size, w.filtered) for w in wins] == [(1, 1), (1, 0), (0, 1)]
     assert (p.n_in, p.n_out) == (4, 2)
+
+
+def test_concat_events_joins_bytes_of_contiguous_arrays_and_falls_back_otherwise():
+    from arena.events import concat_events, make_events
+    rng = np.random.default_rng(4)
+    ev = make_events(rng.integers(0, 640, 500), rng.integers(0, 480, 500), rng.integers(0, 2, 500),
+                     np.sort(rng.integers(0, 10_000, 500)))
+    parts = [ev[:120], ev[120:121], ev[121:]]
+    assert np.array_equal(concat_events(parts), ev)
+    strided = [ev[::2], ev[1::2]]            # not contiguous: numpy's concatenate
+    assert np.array_equal(concat_events(strided), np.concatenate(strided))
+    assert concat_events([]).size == 0 and concat_events([ev]) is ev
+
+
+def test_select_events_equals_boolean_indexing():
+    from arena.events import make_events, select_events
+    rng = np.random.default_rng(6)
+    ev = make_events(rng.integers(0, 640, 700), rng.integers(0, 480, 700), rng.integers(0, 2, 700),
+                     np.sort(rng.integers(0, 10_000, 700)))
+    keep = rng.random(700) < 0.7
+    assert np.array_equal(select_events(ev, keep), ev[keep])
+    assert np.array_equal(select_events(ev[::3], keep[::3]), ev[::3][keep[::3]])   # strided
+    assert select_events(ev, np.zeros(700, bool)).size == 0
