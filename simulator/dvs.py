@@ -161,10 +161,11 @@ def _merge_boxes(boxes, owner):
                             owner[r] = i
                     changed = True
     m = 0
-    remap = np.full(n, -1, dtype=np.int64)
+    remap = np.empty(n, dtype=np.int64)     # every owner is alive: all read entries get set
     for i in range(n):
         if alive[i]:
-            boxes[m] = boxes[i]
+            for c in range(4):      # element-wise: a row assignment compiles numpy's
+                boxes[m, c] = boxes[i, c]   # broadcasting and its error text (~3 s)
             remap[i] = m
             m += 1
     for r in range(n):
@@ -189,7 +190,7 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     n_rob = poses.shape[1]
     K = hist.shape[1]
     cap = ox.shape[0]
-    n = 0
+    n = np.int64(0)     # not a literal 0: numba would compile _sort_segment once per literal
     state = np.zeros((max(n_rob, 1), 4))
     tight = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
     moved = np.zeros(max(n_rob, 1), dtype=np.bool_)
@@ -363,26 +364,39 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                         lmem[v, u] = ref + sign * k * thr
                         t_last[v, u] = tl
         if n - n_step0 > 1:
-            _sort_segment(ox, oy, op, ot, n_step0, n)
+            _sort_segment(ox, oy, op, ot, n_step0, n, t_prev, dt_us)
         t_prev = t_seq[s]
         done += 1
     return done, n, hist_i
 
 
 @njit(cache=True, nogil=True)
-def _sort_segment(ox, oy, op, ot, a, b):
-    """Sort events a..b-1 of the column buffers by time (stable)."""
-    order = np.argsort(ot[a:b], kind="mergesort")
-    tx = ox[a:b].copy()
-    ty = oy[a:b].copy()
-    tp = op[a:b].copy()
-    tt = ot[a:b].copy()
-    for i in range(b - a):
-        k = order[i]
-        ox[a + i] = tx[k]
-        oy[a + i] = ty[k]
-        op[a + i] = tp[k]
-        ot[a + i] = tt[k]
+def _sort_segment(ox, oy, op, ot, a, b, t0, span):
+    """Sort events a..b-1 of the column buffers by time, stably. Their times lie in
+    (t0, t0 + span], so a counting sort over the offsets does it in one pass (no comparison
+    sort: numba's argsort would add seconds of compile time)."""
+    start = np.zeros(span + 2, dtype=np.int64)
+    for i in range(a, b):
+        start[ot[i] - t0 + 1] += 1
+    for k in range(span + 1):
+        start[k + 1] += start[k]
+    m = b - a
+    tx = np.empty(m, dtype=ox.dtype)
+    ty = np.empty(m, dtype=oy.dtype)
+    tp = np.empty(m, dtype=op.dtype)
+    tt = np.empty(m, dtype=ot.dtype)
+    for i in range(a, b):
+        k = start[ot[i] - t0]
+        start[ot[i] - t0] = k + 1
+        tx[k] = ox[i]
+        ty[k] = oy[i]
+        tp[k] = op[i]
+        tt[k] = ot[i]
+    for i in range(m):
+        ox[a + i] = tx[i]
+        oy[a + i] = ty[i]
+        op[a + i] = tp[i]
+        ot[a + i] = tt[i]
 
 
 @njit(cache=True, nogil=True)

@@ -150,6 +150,25 @@ def test_timestamps_are_microseconds_inside_each_step_and_sorted():
     assert len(np.unique(ev["t"] % 1000)) > 200       # sub-step timing, not on a 1 ms grid
 
 
+def test_step_sort_is_stable_and_touches_only_its_segment():
+    from simulator.dvs import _sort_segment
+    rng = np.random.default_rng(3)
+    n, a, b, t0, span = 400, 37, 351, 5_000, 1000
+    ox = rng.integers(0, 1280, n).astype(np.uint16)
+    oy = rng.integers(0, 720, n).astype(np.uint16)
+    op = rng.integers(0, 2, n).astype(np.uint8)
+    ot = t0 + rng.integers(1, 58, n).astype(np.int64) * 17     # many ties, within (t0, t0 + span]
+    ot[a] = t0 + span
+    ot[a + 1] = t0 + 1
+    want = [c.copy() for c in (ox, oy, op, ot)]
+    order = np.argsort(ot[a:b], kind="stable")
+    for c in want:
+        c[a:b] = c[a:b][order]
+    _sort_segment(ox, oy, op, ot, a, b, t0, span)
+    for got, exp in zip((ox, oy, op, ot), want):
+        np.testing.assert_array_equal(got, exp)
+
+
 def test_dim_light_slows_the_photoreceptor_and_lowers_contrast():
     full = run_path(straight(), 0.3)[1].sum()
     robot = RobotSpec("r", BLACK)
