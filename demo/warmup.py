@@ -6,7 +6,7 @@ competes with the running simulator and with itself on a 2-core machine, and the
 came after about a minute. Compiled here first, on both cores and with nothing else running,
 the services then load the kernels from numba's on-disk cache in a fraction of a second.
 
-``python -m demo.warmup sim|services`` compiles one half and prints ``compiled in N s``.
+``python -m demo.warmup sim-edge|tracker`` compiles one half and prints ``compiled in N s``.
 :func:`kernels_cached` tells the demo whether it is needed at all (without importing numba).
 """
 
@@ -41,7 +41,10 @@ def kernels_cached(kernels: tuple[str, ...] = KERNELS) -> bool:
     return True
 
 
-def compile_sim() -> None:
+def compile_sim_edge() -> None:
+    """The simulator's kernels, then the edge's (the halves take about as long: ~11 s each)."""
+    from arena.codec import DEFAULT_CODEC
+    from camera_edge.pipeline import warm_up as warm_edge
     from simulator.camera import CeilingCamera
     from simulator.dvs import DvsParams
     from simulator.simulation import warm_up
@@ -49,22 +52,21 @@ def compile_sim() -> None:
 
     robots = [RobotSpec(f"r{i}", (25, 25, 25), start=(0.4 + 0.3 * i, 0.6, 0.0)) for i in range(2)]
     warm_up(World(robots), CeilingCamera(640, 480), DvsParams())
+    warm_edge(list, 640, 480, DEFAULT_CODEC)
 
 
-def compile_services() -> None:
-    from arena.codec import DEFAULT_CODEC
-    from camera_edge.pipeline import warm_up as warm_edge
+def compile_tracker() -> None:
+    """The tracker's kernels (its grid DBSCAN alone takes ~5 s)."""
     from simulator.camera import CeilingCamera
     from tracker.calibration import Calibration
     from tracker.pipeline import Pipeline
     from tracker.pipeline import warm_up as warm_tracker
 
-    warm_edge(list, 640, 480, DEFAULT_CODEC)
     cal = Calibration.from_dict(CeilingCamera(640, 480).calibration(), "the simulated camera")
     warm_tracker(lambda: Pipeline(cal, fleet_size=4))
 
 
-PARTS = {"sim": compile_sim, "services": compile_services}
+PARTS = {"sim-edge": compile_sim_edge, "tracker": compile_tracker}
 
 
 def main(argv: list[str] | None = None) -> int:
