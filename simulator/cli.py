@@ -308,6 +308,8 @@ def _start_truth_publisher(stack: ExitStack, args, specs, camera) -> _TruthPubli
 def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
     """Advance ``sim`` in BLOCK_S blocks, hand events to the camera and recorders, pace to
     the wall clock unless --fast."""
+    from simulator.evt3 import canonical_order
+
     steps = max(1, int(round(BLOCK_S * 1e6 / sim.step_us)))
     total = math.inf if not args.duration else int(round(args.duration * 1e6 / sim.step_us))
     done = 0
@@ -317,9 +319,10 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
         k = int(min(steps, total - done))
         ev, _, tr = sim.run(k)
         done += k
-        cam.publish(ev, until_us=sim.t_us)
+        wire = canonical_order(ev)      # the order EVT 3.0 is written in, sorted once for both
+        cam.publish(wire, until_us=sim.t_us, ordered=True)
         if raw is not None:
-            raw.write(ev, until_us=sim.t_us)
+            raw.write(wire, until_us=sim.t_us, ordered=True)
         if truth is not None:
             truth.write(tr)
         if truth_pub is not None:

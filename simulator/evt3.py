@@ -29,6 +29,8 @@ import threading
 import numpy as np
 from numba import njit
 
+from arena.events import select_events
+
 
 log = logging.getLogger("simulator.evt3")
 
@@ -49,7 +51,7 @@ def canonical_order(events: np.ndarray) -> np.ndarray:
     # one packed key sorts ~3x faster than a 4-key lexsort (the simulator's camera runs this
     # on every 10 ms block): t (40 bits) | y (11) | p (1) | x (11)
     key = (t << 23) | (y << 12) | (events["p"].astype(np.int64) << 11) | x
-    return events[np.argsort(key, kind="stable")]
+    return select_events(events, np.argsort(key, kind="stable"))
 
 
 @njit(cache=True, nogil=True)
@@ -161,10 +163,11 @@ class Evt3Encoder:
         """Repeat TIME_HIGH, TIME_LOW and ADDR_Y before the next event."""
         self._state[3] = 1
 
-    def encode(self, events: np.ndarray, until_us: int | None = None) -> bytes:
+    def encode(self, events: np.ndarray, until_us: int | None = None, ordered: bool = False) -> bytes:
         """Encode ``events`` (sorted by t, timestamps >= the previous call's) to bytes.
-        ``until_us``: also emit TIME_HIGH words for empty periods up to this time (µs)."""
-        ev = canonical_order(events) if len(events) > 1 else events
+        ``until_us``: also emit TIME_HIGH words for empty periods up to this time (µs).
+        ``ordered``: the events are already in :func:`canonical_order` (skips the sort)."""
+        ev = canonical_order(events) if len(events) > 1 and not ordered else events
         t = ev["t"].astype(np.int64)
         if len(t) and (t[0] < 0 or t[0] < self._last_t):
             raise ValueError("EVT3 encoder: timestamps must be >= 0 and non-decreasing across calls")
@@ -232,9 +235,12 @@ class CameraServer:
         with self._lock:
             return len(self._clients)
 
-    def publish(self, events: np.ndarray, until_us: int | None = None) -> None:
+    def publish(self, events: np.ndarray, until_us: int | None = None, ordered: bool = False) -> None:
         """Send ``events`` (time-sorted, after the previous slice) to every client, split
-        into packets; ``until_us`` = end of the slice (µs) for TIME_HIGH keep-alives."""
+        into packets; ``until_us`` = end of the slice (µs) for TIME_HIGH keep-alives;
+        ``ordered``: already in :func:`canonical_order` (sorted once for every client)."""
+        if not ordered and len(events) > 1:
+            events = canonical_order(events)
         with self._lock:
             clients = list(self._clients)
         for c in clients:
@@ -243,7 +249,7 @@ class CameraServer:
                     if c in self._clients:
                         self._clients.remove(c)
                 continue
-            for pkt in c.packets(events, until_us, self.packet_bytes):
+            for pkt in c.packets(events, until_us, self.packet_bytes, ordered=True):
                 if self.drop_when_slow:
                     try:
                         c.q.put_nowait(pkt)
@@ -301,8 +307,11 @@ class _Client:
         self.thread = threading.Thread(target=self._send, name="evt3-client", daemon=True)
         self.thread.start()
 
-    def packets(self, events: np.ndarray, until_us, packet_bytes: int):
-        """Encode ``events`` into packets of at most ~packet_bytes, each starting with a resync."""
+    def packets(self, events: np.ndarray, until_us, packet_bytes: int, ordered: bool = False):
+        """Encode ``events`` into packets of at most ~packet_bytes, each starting with a resync
+        (``ordered``: already in :func:`canonical_order`)."""
+        if not ordered and len(events) > 1:
+            events = canonical_order(events)
         per = max(1, packet_bytes // 8)    # <= ~4 words (8 bytes) per event
         n = len(events)
         if n == 0:
@@ -317,7 +326,7 @@ class _Client:
             while b < n and t[b] == t[b - 1]:   # keep one timestamp in one packet
                 b += 1
             self.encoder.resync()
-            yield self.encoder.encode(events[a:b], until_us if b == n else None)
+            yield self.encoder.encode(events[a:b], until_us if b == n else None, ordered=True)
             a = b
 
     def _send(self) -> None:

@@ -132,3 +132,5 @@ def test_select_events_equals_boolean_indexing():
     assert np.array_equal(select_events(ev, keep), ev[keep])
     assert np.array_equal(select_events(ev[::3], keep[::3]), ev[::3][keep[::3]])   # strided
     assert select_events(ev, np.zeros(700, bool)).size == 0
+    order = np.random.default_rng(1).permutation(700)[:500]      # an index array too
+    assert np.array_equal(select_events(ev, order), ev[order])
