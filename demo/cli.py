@@ -25,6 +25,11 @@ log = logging.getLogger("arena.demo")
 
 MISSIONS = ("circle", "square", "mixed")
 LIGHTING = ("full", "dimmed", "dark")
+#: niceness added to the observers (recorder, ground truth, viewer). The simulator stands in for
+#: the physical world, which never waits; the edge, tracker and bridge are the system under test.
+#: On 2 cores the nine processes need about all of both, so when they compete (service start-up,
+#: mission start) the observers, which queue what they receive, are the ones that wait.
+OBSERVER_NICE = 10
 
 
 def register(subparsers) -> None:
@@ -151,7 +156,8 @@ def run(args) -> int:
             alive = _AliveSet(session)
             early.append(sup.start(ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name",
                                                                    "demo", *z),
-                                            ready_check=alive.has("recorder", "demo"), ready_timeout_s=90), wait=False))
+                                            ready_check=alive.has("recorder", "demo"), ready_timeout_s=90,
+                                            nice=OBSERVER_NICE), wait=False))
             early[1].wait_ready()
             specs = [ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
                               ready_check=alive.has("edge", "cam0"), ready_timeout_s=90)]
@@ -165,10 +171,12 @@ def run(args) -> int:
                                                          "--calibration", f"{web}/calibration.json", "--clock", "stream",
                                                          "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"),
                                                          *_robot_markers(args.robots), *z),
-                                  ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90))
+                                  ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90,
+                                  nice=OBSERVER_NICE))
             if args.view:
                 specs.append(ProcSpec("viewer", python_cmd("view", "--port", str(args.view_port), "--name", "demo",
-                                                           "--calibration", str(calib), *z), ready="viewer on"))
+                                                           "--calibration", str(calib), *z), ready="viewer on",
+                                  nice=OBSERVER_NICE))
             bridge = python_cmd("bridge", "run", *[a for i, r in enumerate(robots)
                                                    for a in ("--robot", f"{r}=socket://127.0.0.1:{robot_base + i}")],
                                 "--name", "demo", "--log-dir", str(run_dir / "telemetry"), *z)

@@ -9,6 +9,7 @@ SIGTERM then SIGKILL after a grace period.
 from __future__ import annotations
 
 import ctypes
+import functools
 import logging
 import os
 import signal
@@ -25,12 +26,14 @@ log = logging.getLogger("arena.demo")
 _PR_SET_PDEATHSIG = 1
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
+def _child_setup(nice: int = 0) -> None:  # runs in the child between fork and exec
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)  # die with the launcher
     except OSError:  # not Linux: the launcher's own cleanup still applies
         pass
+    if nice:
+        os.nice(nice)
 
 
 @dataclass
@@ -45,6 +48,7 @@ class ProcSpec:
     stop_timeout_s: float = 5.0
     env: dict = field(default_factory=dict)
     on_line: Callable[[str], None] | None = None  # called for every output line
+    nice: int = 0  # added to the process's niceness (> 0: yields the CPU to the others)
 
 
 class Proc:
@@ -56,7 +60,8 @@ class Proc:
         self._log = open(self.log_path, "w", buffering=1, encoding="utf-8")
         env = {**os.environ, "PYTHONUNBUFFERED": "1", **spec.env}
         self.popen = subprocess.Popen(spec.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                      env=env, preexec_fn=_die_with_parent, bufsize=1, errors="replace")
+                                      env=env, preexec_fn=functools.partial(_child_setup, spec.nice), bufsize=1,
+                                      errors="replace")
         self.ready = threading.Event()
         self.lines: list[str] = []
         if spec.ready is None and spec.ready_check is None:

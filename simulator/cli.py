@@ -314,7 +314,7 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
     total = math.inf if not args.duration else int(round(args.duration * 1e6 / sim.step_us))
     done = 0
     t0 = time.monotonic()
-    last_report, n_events, behind_warned = t0, 0, 0.0
+    last_report, n_events, behind_warned, max_lag, max_lag_t = t0, 0, 0.0, 0.0, 0.0
     while done < total and not stop["flag"]:
         k = int(min(steps, total - done))
         ev, _, tr = sim.run(k)
@@ -332,6 +332,8 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
         sim_s = done * sim.step_us * 1e-6
         if not args.fast:
             lag = (t0 + sim_s) - now
+            if -lag > max_lag:
+                max_lag, max_lag_t = -lag, sim_s
             if lag > 0:
                 time.sleep(lag)
             elif -lag > 0.5 and now - behind_warned > 10:
@@ -339,7 +341,8 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
                 log.warning("simulation is %.1f s behind real time (too many robots for this CPU?)", -lag)
         if now - last_report >= 10:
             print(f"t={sim_s:7.1f} s  {n_events / (now - last_report):9.0f} ev/s  real-time factor "
-                  f"{sim_s / (now - t0):.2f}  camera clients {cam.n_clients}", flush=True)
+                  f"{sim_s / (now - t0):.2f}  max lag {max_lag:.2f} s (t={max_lag_t:.1f} s)  camera clients {cam.n_clients}",
+                  flush=True)
             last_report, n_events = now, 0
 
 
