@@ -479,7 +479,7 @@ class MissionRunner:
         lo = self._s
         hi = min(seg.length_m, lo + 0.15)
         ss = np.linspace(lo, hi, 31)
-        pts = np.array([seg.pose_at(s)[:2] for s in ss])
+        pts = seg.positions_at(ss)
         d = np.hypot(pts[:, 0] - x, pts[:, 1] - y)
         return float(ss[int(np.argmin(d))])
 

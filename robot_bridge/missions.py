@@ -77,6 +77,20 @@ class Segment:
         th = th0 + k * s
         return x0 + (math.sin(th) - math.sin(th0)) / k, y0 - (math.cos(th) - math.cos(th0)) / k, wrap_angle(th)
 
+    def positions_at(self, ss: np.ndarray) -> np.ndarray:
+        """Commanded positions (n, 2), m, after each of ``ss`` metres along a line/arc (clipped
+        to the segment): :meth:`pose_at` for many points at once (the start for a turn or pause)."""
+        ss = np.asarray(ss, dtype=float)
+        x0, y0, th0 = self.start
+        if self.kind not in ("line", "arc"):
+            return np.tile(np.array([x0, y0], dtype=float), (ss.size, 1))
+        ss = np.clip(ss, 0.0, self.length_m)
+        k = self.curvature
+        if abs(k) < 1e-9:
+            return np.column_stack([x0 + ss * math.cos(th0), y0 + ss * math.sin(th0)])
+        th = th0 + k * ss
+        return np.column_stack([x0 + (np.sin(th) - math.sin(th0)) / k, y0 - (np.cos(th) - math.cos(th0)) / k])
+
     @property
     def end(self) -> Pose:
         """Commanded pose at the end of the phase."""
@@ -89,7 +103,7 @@ class Segment:
         if self.kind not in ("line", "arc") or self.length_m <= 0:
             return np.array([self.start[:2]])
         n = max(2, int(math.ceil(self.length_m / step_m)) + 1)
-        return np.array([self.pose_at(s)[:2] for s in np.linspace(0.0, self.length_m, n)])
+        return self.positions_at(np.linspace(0.0, self.length_m, n))
 
 
 @dataclass

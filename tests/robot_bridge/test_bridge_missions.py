@@ -78,3 +78,13 @@ def test_speed_from_power_or_speed():
         mission_speed(power=0.5, speed_mps=0.1)
     with pytest.raises(MissionError, match="speed_mps"):
         mission_speed(speed_mps=3.0)
+
+
+def test_positions_at_matches_pose_at_on_lines_arcs_and_turns():
+    segs = build_mission("circle", {"radius_m": 0.3}, START, 0.23).segments
+    segs += build_mission("square", {"side_m": 0.6}, (0.3, 0.3, 0.0), 0.46).segments
+    for seg in segs:
+        ss = np.linspace(-0.1, seg.length_m + 0.1, 37)          # clipped at both ends too
+        want = np.array([seg.pose_at(s)[:2] for s in ss]) if seg.kind != "turn" else \
+            np.tile(seg.start[:2], (ss.size, 1))
+        assert np.allclose(seg.positions_at(ss), want, atol=1e-12), seg.kind
