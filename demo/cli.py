@@ -341,6 +341,25 @@ def _missions_end_us(telemetry_dir: Path) -> int | None:
     return min(ends) if ends else None
 
 
+def _sim_realtime(log_path: Path) -> dict | None:
+    """The simulator's closing ``real time: factor F over S s simulated, worst lag L s (t=T s)``
+    line from its log, as ``{"factor", "simulated_s", "worst_lag_s", "worst_lag_at_s"}``."""
+    import re
+
+    try:
+        text = log_path.read_text(errors="replace")
+    except OSError:
+        return None
+    m = None
+    for m in re.finditer(r"real time: factor ([\d.]+) over ([\d.]+) s simulated, worst lag ([\d.]+) s "
+                         r"\(t=([\d.]+) s\)", text):
+        pass
+    if m is None:
+        return None
+    return {"factor": float(m[1]), "simulated_s": float(m[2]), "worst_lag_s": float(m[3]),
+            "worst_lag_at_s": float(m[4])}
+
+
 def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     """Score the run, write the report, print where everything is."""
     summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "pids": pids, "first_track_s": first_track_s}
@@ -359,6 +378,9 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
             summary["ok"] = True
         except Exception as exc:  # noqa: BLE001 - report what failed rather than crash at the end
             summary["score_error"] = str(exc)
+    rt = _sim_realtime(run_dir / "logs" / "sim.log")
+    if rt is not None:
+        summary["sim_realtime"] = rt
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     s = summary.get("scores", {})
     print("\n=== arena demo: results ===")
@@ -373,6 +395,9 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
         print(f"no score: {summary.get('score_error', 'tracks or truth missing')}")
     if first_track_s is not None:
         print(f"first track after {first_track_s:.1f} s")
+    if rt is not None:
+        print(f"simulator: {rt['factor']:.2f}x real time, worst lag {rt['worst_lag_s']:.2f} s"
+              + ("" if rt["worst_lag_s"] < 0.5 else " (the CPU was short; the data follow the simulated clock)"))
     print(f"run folder: {run_dir}  (tracks.csv, truth.csv, groundtruth.csv, telemetry/, events.raw, arena.mcap, logs/)")
     print(f"watch it again: arena replay {run_dir} & arena view   (then open http://127.0.0.1:8080)")
     return summary

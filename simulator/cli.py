@@ -344,6 +344,10 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
                   f"{sim_s / (now - t0):.2f}  max lag {max_lag:.2f} s (t={max_lag_t:.1f} s)  camera clients {cam.n_clients}",
                   flush=True)
             last_report, n_events = now, 0
+    if not args.fast and done:
+        sim_s = done * sim.step_us * 1e-6
+        print(f"real time: factor {sim_s / max(time.monotonic() - t0, 1e-9):.2f} over {sim_s:.1f} s simulated, "
+              f"worst lag {max_lag:.2f} s (t={max_lag_t:.1f} s)", flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:

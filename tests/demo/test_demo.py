@@ -89,6 +89,9 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
     assert 9_000_000 < summary["scored_until_us"] < truth_end, (summary["scored_until_us"], truth_end)
     # the missions' span on the simulator's clock: the 10 s asked for, the 1 s the demo waits
     # after them and the bridge's stop (less when the simulator lags); one frame per 10 ms slice
+    rt = summary["sim_realtime"]        # the simulator's own account of keeping time
+    assert 0.5 < rt["factor"] <= 1.01 and 0 <= rt["worst_lag_s"] < rt["simulated_s"], rt
+    assert rt["simulated_s"] > 10.0, rt       # it ran through the 10 s of missions
     span_s = (summary["scored_until_us"] - min(moving)) / 1e6
     assert 5.0 < span_s < 13.0, span_s
     assert 400 <= s["n_frames"] <= span_s * 100 + 20, (s["n_frames"], span_s)
