@@ -57,6 +57,10 @@ def register(subparsers) -> None:
     p.add_argument("--view", action="store_true", help="also start the web viewer (arena view)")
     p.add_argument("--view-port", type=int, default=8080, help="viewer port (default 8080)")
     p.add_argument("--quiet", action="store_true", help="no live table, only the final summary")
+    p.add_argument("--observer-nice", type=int, default=OBSERVER_NICE, metavar="N",
+                   help=f"niceness added to the recorder, ground truth and viewer so the simulated world "
+                        f"and the system under test get the CPU first (default {OBSERVER_NICE}; 0 = same "
+                        f"priority; bench/bench_demo_realtime.py compares)")
     p.set_defaults(func=run)
 
 
@@ -115,6 +119,10 @@ def run(args) -> int:
     if args.duration <= 0:
         print("arena demo: --duration must be positive", file=sys.stderr)
         return 2
+    if not 0 <= args.observer_nice <= 19:
+        print("arena demo: --observer-nice must be in 0..19 (a process may only lower its priority)",
+              file=sys.stderr)
+        return 2
     from arena.service import stop_on_signals
     from arena.session import SessionError, ZenohSettings, open_session
 
@@ -157,7 +165,7 @@ def run(args) -> int:
             early.append(sup.start(ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name",
                                                                    "demo", *z),
                                             ready_check=alive.has("recorder", "demo"), ready_timeout_s=90,
-                                            nice=OBSERVER_NICE), wait=False))
+                                            nice=args.observer_nice), wait=False))
             early[1].wait_ready()
             specs = [ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
                               ready_check=alive.has("edge", "cam0"), ready_timeout_s=90)]
@@ -172,11 +180,11 @@ def run(args) -> int:
                                                          "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"),
                                                          *_robot_markers(args.robots), *z),
                                   ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90,
-                                  nice=OBSERVER_NICE))
+                                  nice=args.observer_nice))
             if args.view:
                 specs.append(ProcSpec("viewer", python_cmd("view", "--port", str(args.view_port), "--name", "demo",
                                                            "--calibration", str(calib), *z), ready="viewer on",
-                                  nice=OBSERVER_NICE))
+                                  nice=args.observer_nice))
             bridge = python_cmd("bridge", "run", *[a for i, r in enumerate(robots)
                                                    for a in ("--robot", f"{r}=socket://127.0.0.1:{robot_base + i}")],
                                 "--name", "demo", "--log-dir", str(run_dir / "telemetry"), *z)

@@ -1,0 +1,74 @@
+"""Does the 4-robot demo keep real time on this machine? Runs ``arena demo`` several times,
+alternating the observers' priority: ours (recorder, ground truth and viewer at nice +10, the
+default) against the baseline (every process at the same priority, ``--observer-nice 0``).
+
+Per run it prints the simulator's own account (real-time factor and worst lag behind the wall
+clock, from ``summary.json``), the first track, the tracking scores, and the CPU the whole demo
+used (all its processes, in cores). The runs alternate so that a change in the machine's load hits
+both sides alike; the summary prints the mean worst lag of each side and their ratio.
+
+    python bench/bench_demo_realtime.py                 # 2 pairs of 20 s demos, ~3 min
+    python bench/bench_demo_realtime.py --pairs 5 --duration 30
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def one_run(nice: int, duration: float, out: Path) -> dict:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "arena", "demo", "--duration", str(duration), "--quiet",
+                           "--observer-nice", str(nice), "--out", str(out)],
+                          capture_output=True, text=True, timeout=duration + 180)
+    wall = time.monotonic() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode != 0:
+        raise SystemExit(f"arena demo failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
+    run_dir = max(out.glob("demo-*"), key=lambda p: p.stat().st_mtime)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"nice": nice, "rt": summary.get("sim_realtime") or {}, "scores": summary.get("scores") or {},
+            "first_track_s": summary.get("first_track_s"), "cores": cpu / wall}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--pairs", type=int, default=2, help="pairs of runs, ours then baseline (default 2)")
+    ap.add_argument("--duration", type=float, default=20.0, help="seconds of missions per run (default 20)")
+    ap.add_argument("--nice", type=int, default=10, help="observers' niceness of 'ours' (default 10)")
+    args = ap.parse_args(argv)
+    print(f"arena demo, 4 robots, {args.duration:g} s missions, {args.pairs} pair(s) of runs "
+          f"(machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})")
+    print(f"{'run':<26}{'RTF':>6}{'worst lag s':>13}{'at t s':>8}{'first track s':>15}{'MOTA':>7}"
+          f"{'MAE cm':>8}{'cores':>7}")
+    lags: dict[int, list[float]] = {args.nice: [], 0: []}
+    with tempfile.TemporaryDirectory(prefix="bench-demo-") as tmp:
+        for i in range(args.pairs):
+            for nice in (args.nice, 0):
+                r = one_run(nice, args.duration, Path(tmp))
+                rt, s = r["rt"], r["scores"]
+                lags[nice].append(rt.get("worst_lag_s", float("nan")))
+                label = f"{'ours' if nice else 'baseline'} (observers +{nice}) #{i + 1}"
+                print(f"{label:<26}{rt.get('factor', float('nan')):6.2f}{rt.get('worst_lag_s', float('nan')):13.2f}"
+                      f"{rt.get('worst_lag_at_s', float('nan')):8.1f}{r['first_track_s'] or float('nan'):15.1f}"
+                      f"{s.get('mota', float('nan')):7.3f}{s.get('mae_cm', float('nan')):8.2f}{r['cores']:7.2f}",
+                      flush=True)
+    ours, base = statistics.mean(lags[args.nice]), statistics.mean(lags[0])
+    print(f"mean worst lag: ours {ours:.2f} s, baseline {base:.2f} s -> baseline/ours {base / ours:.1f}x"
+          if ours > 0 else f"mean worst lag: ours {ours:.2f} s, baseline {base:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
