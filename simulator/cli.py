@@ -319,7 +319,8 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
         k = int(min(steps, total - done))
         ev, _, tr = sim.run(k)
         done += k
-        wire = canonical_order(ev)      # the order EVT 3.0 is written in, sorted once for both
+        # the order EVT 3.0 is written in, sorted once for the camera's clients and the recording
+        wire = canonical_order(ev) if raw is not None or cam.n_clients else ev
         cam.publish(wire, until_us=sim.t_us, ordered=True)
         if raw is not None:
             raw.write(wire, until_us=sim.t_us, ordered=True)
