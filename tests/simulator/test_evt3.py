@@ -154,6 +154,38 @@ def test_camera_server_survives_a_client_that_goes_away():
         assert cam.n_clients == 0
 
 
+def test_camera_server_drops_whole_packets_for_a_client_that_does_not_read():
+    """Real-time mode (the simulator's default): a client that stops reading loses whole packets,
+    counted, and never stalls the camera; what it does get decodes to events that were sent."""
+    import threading
+
+    ev = random_events(seed=5, n=200_000, t_max=2_000_000)
+    with CameraServer(port=0, packet_bytes=4096, max_queue=4) as cam:
+        s = socket.socket()
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)     # a small window fills fast
+        s.connect((cam.host, cam.port))
+        with s:
+            deadline = time.monotonic() + 5
+            while cam.n_clients == 0 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            done = threading.Event()
+
+            def publish_all():
+                for a in range(0, len(ev), 5000):
+                    cam.publish(ev[a:a + 5000], until_us=int(ev["t"][min(a + 4999, len(ev) - 1)]))
+                done.set()
+
+            threading.Thread(target=publish_all, daemon=True).start()
+            assert done.wait(60), "the camera stalled on a client that does not read"
+            assert cam.dropped_packets > 0
+            data = _read_available(s, 1.0)
+    got = decoded(evt3.Decoder(640, 480).feed(data))
+    assert 0 < len(got) < len(ev)
+    assert np.all(np.diff(got["t"]) >= 0)                # resynced packets keep time in order
+    sent = {tuple(r) for r in canonical_order(ev)[["x", "y", "p", "t"]].tolist()}
+    assert all(tuple(r) in sent for r in got[["x", "y", "p", "t"]].tolist())
+
+
 def test_canonical_order_is_t_then_y_p_x_for_any_events():
     # the packed-key sort must equal the 4-key lexsort, duplicates and out-of-range values too
     rng = np.random.default_rng(3)
