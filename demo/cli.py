@@ -223,14 +223,14 @@ def run(args) -> int:
 
 def _compile_kernels(sup: Supervisor) -> None:
     """On the first run after installing, compile the numba kernels of the simulator and of the
-    edge and tracker in two processes side by side (~20 s on 2 cores) before any service starts:
+    edge and tracker in two processes side by side (~14 s on 2 cores) before any service starts:
     left to the services, the compiles competed with each other and with the running simulator,
     and the first track came after about a minute. Later runs load them from numba's cache."""
     from demo.warmup import PARTS, kernels_cached
 
     if kernels_cached():
         return
-    print("first run after installing: compiling the numba kernels once (about 20 s on 2 cores; "
+    print("first run after installing: compiling the numba kernels once (about 15 s on 2 cores; "
           "later runs skip this)", flush=True)
     t0 = time.monotonic()
     procs = [sup.start(ProcSpec(f"cmd-compile-{part}", [sys.executable, "-m", "demo.warmup", part]), wait=False)

@@ -1,7 +1,7 @@
 """Compile the demo's numba kernels once, in two processes side by side, before its services start.
 
-On the first run after installing, numba compiles every kernel (about 20 s of CPU for the
-simulator's pixel model, 20 s for the edge and the tracker). Left to the services, that work
+On the first run after installing, numba compiles every kernel (about 12 s of CPU for the
+simulator's and the edge's, 12 s for the tracker's). Left to the services, that work
 competes with the running simulator and with itself on a 2-core machine, and the first track
 came after about a minute. Compiled here first, on both cores and with nothing else running,
 the services then load the kernels from numba's on-disk cache in a fraction of a second.
