@@ -41,6 +41,7 @@ def register(subparsers) -> None:
                "  arena demo --robots 2 --mission circle --power 0.5 --duration 20\n"
                "  arena demo --lighting dimmed --view         # and open http://127.0.0.1:8080\n"
                "  arena demo --duration 10 --out /tmp/runs --quiet\n"
+               "  arena demo --prepare                         # once after installing: compile, then exit\n"
                "Afterwards: arena replay RUN_DIR & arena view   # watch the recorded run again")
     p.add_argument("--robots", type=int, default=4, help="number of robots, 1-16 (default 4)")
     p.add_argument("--mission", choices=MISSIONS, default="mixed",
@@ -61,6 +62,10 @@ def register(subparsers) -> None:
                    help=f"niceness added to the recorder, ground truth and viewer so the simulated world "
                         f"and the system under test get the CPU first (default {OBSERVER_NICE}; 0 = same "
                         f"priority; bench/bench_demo_realtime.py compares)")
+    p.add_argument("--prepare", action="store_true",
+                   help="compile the numba kernels into numba's on-disk cache (~15 s on 2 cores) and exit; "
+                        "run once after installing so the first demo starts in seconds (the demo "
+                        "otherwise does it itself on its first run)")
     p.set_defaults(func=run)
 
 
@@ -123,6 +128,8 @@ def run(args) -> int:
         print("arena demo: --observer-nice must be in 0..19 (a process may only lower its priority)",
               file=sys.stderr)
         return 2
+    if args.prepare:
+        return _prepare()
     from arena.service import stop_on_signals
     from arena.session import SessionError, ZenohSettings, open_session
 
@@ -221,16 +228,38 @@ def run(args) -> int:
     return code
 
 
-def _compile_kernels(sup: Supervisor) -> None:
+def _prepare() -> int:
+    """``arena demo --prepare``: the compile step of installing (the README's first command runs
+    it between ``pip install`` and ``arena demo``). The compilers' logs are kept only on failure."""
+    import shutil
+    import tempfile
+
+    logs = Path(tempfile.mkdtemp(prefix="arena-prepare-"))
+    sup = Supervisor(logs)
+    try:
+        if not _compile_kernels(sup):
+            print("arena demo --prepare: the numba kernels are already compiled (numba's cache); nothing to do",
+                  flush=True)
+    except RuntimeError as exc:
+        print(f"arena demo --prepare: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        sup.stop_all()
+    shutil.rmtree(logs, ignore_errors=True)
+    return 0
+
+
+def _compile_kernels(sup: Supervisor) -> bool:
     """On the first run after installing, compile the numba kernels of the simulator and of the
     edge and tracker in two processes side by side (~14 s on 2 cores) before any service starts:
     left to the services, the compiles competed with each other and with the running simulator,
-    and the first track came after about a minute. Later runs load them from numba's cache."""
+    and the first track came after about a minute. Later runs load them from numba's cache.
+    Returns whether it compiled anything."""
     from demo.warmup import PARTS, kernels_cached
 
     if kernels_cached():
-        return
-    print("first run after installing: compiling the numba kernels once (about 15 s on 2 cores; "
+        return False
+    print("compiling the numba kernels once after installing (about 15 s on 2 cores; "
           "later runs skip this)", flush=True)
     t0 = time.monotonic()
     procs = [sup.start(ProcSpec(f"cmd-compile-{part}", [sys.executable, "-m", "demo.warmup", part]), wait=False)
@@ -244,6 +273,7 @@ def _compile_kernels(sup: Supervisor) -> None:
             raise RuntimeError(f"compiling the kernels failed ({proc.spec.name} exited with "
                                f"{proc.popen.returncode}); see {proc.log_path}")
     print(f"kernels compiled in {time.monotonic() - t0:.0f} s", flush=True)
+    return True
 
 
 class _AliveSet:

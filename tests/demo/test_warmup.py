@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from demo.warmup import KERNELS, kernels_cached
 
 
@@ -22,3 +24,20 @@ def test_kernels_cached_sees_the_files_numba_writes(tmp_path, monkeypatch):
                    env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
     assert kernels_cached(codec)          # numba's own index files, found by name
     assert not kernels_cached(KERNELS)    # the simulator's and tracker's are still missing
+
+
+@pytest.mark.slow
+def test_arena_demo_prepare_compiles_every_kernel_once(tmp_path, monkeypatch):
+    """The README's install step: ``arena demo --prepare`` fills an empty numba cache with every
+    kernel the demo's services use, and a second call finds nothing to do."""
+    from tests.conftest import arena_cmd
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    assert not kernels_cached()
+    first = subprocess.run(arena_cmd("demo", "--prepare"), capture_output=True, text=True, timeout=300, env=env)
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-2000:]
+    assert "kernels compiled in" in first.stdout, first.stdout
+    assert kernels_cached()
+    second = subprocess.run(arena_cmd("demo", "--prepare"), capture_output=True, text=True, timeout=60, env=env)
+    assert second.returncode == 0 and "nothing to do" in second.stdout, second.stdout + second.stderr
