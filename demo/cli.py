@@ -398,6 +398,38 @@ def _sim_realtime(log_path: Path) -> dict | None:
             "worst_lag_at_s": float(m[4])}
 
 
+def _latency(log_path: Path) -> dict | None:
+    """The live scorer's closing ``SUMMARY {...}`` latency percentiles (edge publish -> track
+    received), as ``{"n", "p50_ms", "p99_ms"}``."""
+    try:
+        lines = [ln for ln in log_path.read_text(errors="replace").splitlines() if ln.startswith("SUMMARY ")]
+        lat = json.loads(lines[-1][8:])["latency"] if lines else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return lat if isinstance(lat, dict) and lat.get("n") else None
+
+
+def _windows(mcap_path: Path) -> dict | None:
+    """Event windows over the whole run from the edge's and the tracker's last status in the MCAP
+    recording: how many the edge published and dropped (DROP policy), and how many the tracker
+    took in, found missing on the way (sequence gaps) or dropped from its queue."""
+    try:
+        from mcap.reader import make_reader
+
+        last: dict[str, dict] = {}
+        with open(mcap_path, "rb") as f:
+            for _, ch, m in make_reader(f).iter_messages(topics=["arena/status/edge/cam0", "arena/status/tracker/cam0"]):
+                last[ch.topic.split("/")[2]] = json.loads(m.data).get("counters", {})
+    except Exception:  # noqa: BLE001 - an unreadable recording only loses this line of the report
+        return None
+    if set(last) != {"edge", "tracker"}:
+        return None
+    e, t = last["edge"], last["tracker"]
+    return {"edge_published": e.get("windows", 0), "edge_dropped": e.get("windows_dropped", 0),
+            "tracker_in": t.get("windows_in", 0), "tracker_missed": t.get("windows_missed", 0),
+            "tracker_queue_dropped": t.get("windows_dropped_in_queue", 0)}
+
+
 def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     """Score the run, write the report, print where everything is."""
     summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "pids": pids, "first_track_s": first_track_s}
@@ -419,6 +451,11 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     rt = _sim_realtime(run_dir / "logs" / "sim.log")
     if rt is not None:
         summary["sim_realtime"] = rt
+    lat, wins = _latency(run_dir / "logs" / "scorer.log"), _windows(run_dir / "arena.mcap")
+    if lat is not None:
+        summary["latency"] = lat
+    if wins is not None:
+        summary["windows"] = wins
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     s = summary.get("scores", {})
     print("\n=== arena demo: results ===")
@@ -436,6 +473,12 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     if rt is not None:
         print(f"simulator: {rt['factor']:.2f}x real time, worst lag {rt['worst_lag_s']:.2f} s"
               + ("" if rt["worst_lag_s"] < 0.5 else " (the CPU was short; the data follow the simulated clock)"))
+    if lat is not None:
+        print(f"latency edge -> track: p50 {lat['p50_ms']:.1f} ms, p99 {lat['p99_ms']:.1f} ms over {lat['n']} tracks")
+    if wins is not None:
+        print(f"event windows: the edge published {wins['edge_published']} and dropped {wins['edge_dropped']}; "
+              f"the tracker processed {wins['tracker_in']}, found {wins['tracker_missed']} missing and dropped "
+              f"{wins['tracker_queue_dropped']} from its queue")
     print(f"run folder: {run_dir}  (tracks.csv, truth.csv, groundtruth.csv, telemetry/, events.raw, arena.mcap, logs/)")
     print(f"watch it again: arena replay {run_dir} & arena view   (then open http://127.0.0.1:8080)")
     return summary

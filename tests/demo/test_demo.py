@@ -77,6 +77,13 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
     for counter in ("windows_missed", "windows_dropped_in_queue"):   # lost on the way, or by its queue
         n_before = before[-1]["counters"].get(counter, 0) if before else 0
         assert status[-1][1]["counters"].get(counter, 0) == n_before, (counter, n_before, status[-1], gaps)
+    # the demo's report counts the same windows (from the recorded statuses) and the latency
+    w = summary["windows"]
+    assert w["tracker_in"] == status[-1][1]["counters"]["windows_in"] and w["edge_published"] >= len(windows), w
+    assert w["tracker_missed"] == status[-1][1]["counters"].get("windows_missed", 0), w
+    lat = summary["latency"]
+    assert lat["n"] > 1000 and 0 < lat["p50_ms"] <= lat["p99_ms"], lat
+    assert "latency edge -> track: p50" in out.stdout and "event windows: the edge published" in out.stdout
     for log in ("router", "sim", "edge", "tracker", "bridge", "groundtruth"):
         assert (run_dir / "logs" / f"{log}.log").exists()
 
