@@ -3,8 +3,10 @@ alternating the observers' priority: ours (recorder, ground truth and viewer at 
 default) against the baseline (every process at the same priority, ``--observer-nice 0``).
 
 Per run it prints the simulator's own account (real-time factor and worst lag behind the wall
-clock, from ``summary.json``), the first track, the tracking scores, and the CPU the whole demo
-used (all its processes, in cores). The runs alternate so that a change in the machine's load hits
+clock, from ``summary.json``), the first track, the tracking scores, the CPU the whole demo
+used (all its processes, in cores), the latency from the edge publishing a slice to its track
+arriving (p50, p99) and the event windows lost (dropped by the edge, missing at the tracker or
+dropped from its queue). The runs alternate so that a change in the machine's load hits
 both sides alike; the summary prints the mean worst lag of each side and their ratio.
 
     python bench/bench_demo_realtime.py                 # 2 pairs of 20 s demos, ~3 min
@@ -39,7 +41,8 @@ def one_run(nice: int, duration: float, out: Path) -> dict:
     summary = json.loads((run_dir / "summary.json").read_text())
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"nice": nice, "rt": summary.get("sim_realtime") or {}, "scores": summary.get("scores") or {},
-            "first_track_s": summary.get("first_track_s"), "cores": cpu / wall}
+            "first_track_s": summary.get("first_track_s"), "cores": cpu / wall,
+            "latency": summary.get("latency") or {}, "windows": summary.get("windows") or {}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -51,18 +54,21 @@ def main(argv: list[str] | None = None) -> int:
     print(f"arena demo, 4 robots, {args.duration:g} s missions, {args.pairs} pair(s) of runs "
           f"(machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})")
     print(f"{'run':<26}{'RTF':>6}{'worst lag s':>13}{'at t s':>8}{'first track s':>15}{'MOTA':>7}"
-          f"{'MAE cm':>8}{'cores':>7}")
+          f"{'MAE cm':>8}{'cores':>7}{'lat p50 ms':>12}{'p99 ms':>8}{'windows lost':>14}")
     lags: dict[int, list[float]] = {args.nice: [], 0: []}
     with tempfile.TemporaryDirectory(prefix="bench-demo-") as tmp:
         for i in range(args.pairs):
             for nice in (args.nice, 0):
                 r = one_run(nice, args.duration, Path(tmp))
-                rt, s = r["rt"], r["scores"]
+                rt, s, lat, w = r["rt"], r["scores"], r["latency"], r["windows"]
+                # dropped by the edge, found missing by the tracker or dropped from its queue
+                lost = (str(w["edge_dropped"] + w["tracker_missed"] + w["tracker_queue_dropped"]) if w else "n/a")
                 lags[nice].append(rt.get("worst_lag_s", float("nan")))
                 label = f"{'ours' if nice else 'baseline'} (observers +{nice}) #{i + 1}"
                 print(f"{label:<26}{rt.get('factor', float('nan')):6.2f}{rt.get('worst_lag_s', float('nan')):13.2f}"
                       f"{rt.get('worst_lag_at_s', float('nan')):8.1f}{r['first_track_s'] or float('nan'):15.1f}"
-                      f"{s.get('mota', float('nan')):7.3f}{s.get('mae_cm', float('nan')):8.2f}{r['cores']:7.2f}",
+                      f"{s.get('mota', float('nan')):7.3f}{s.get('mae_cm', float('nan')):8.2f}{r['cores']:7.2f}"
+                      f"{lat.get('p50_ms', float('nan')):12.1f}{lat.get('p99_ms', float('nan')):8.1f}{lost:>14}",
                       flush=True)
     ours, base = statistics.mean(lags[args.nice]), statistics.mean(lags[0])
     print(f"mean worst lag: ours {ours:.2f} s, baseline {base:.2f} s -> baseline/ours {base / ours:.1f}x"

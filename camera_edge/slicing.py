@@ -71,7 +71,9 @@ class Slicer:
         out: list[Slice] = []
         if events.size == 0:
             return out
-        t = events["t"]
+        # one contiguous copy per chunk: numpy's searchsorted copies a strided array (the packed
+        # event's field) in full on every call, which made slicing O(windows x chunk)
+        t = np.ascontiguousarray(events["t"])
         if self._start is None:
             t0 = int(t[0])
             self._start = t0 - t0 % self.slice_us
