@@ -118,6 +118,7 @@ class RobotHandle:
         self.samples = 0
         self.published = 0
         self.battery_mv = 0
+        self.halting = False   # the bridge is closing: STOP was sent, no more motor commands
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -371,6 +372,8 @@ class RobotHandle:
             self._end_mission("finished")
             self._stop_motors()
             return "done"
+        if self.halting:
+            return out.phase
         try:
             self.link.set_motors(out.left, out.right)
         except LinkDown:
@@ -444,10 +447,22 @@ class Bridge:
     def close(self) -> None:
         """Stop every robot, close logs, links and Zenoh declarations."""
         self._stop.set()
-        for h in self.handles.values():   # every robot stops first, then the links close (each
-            h.halt()                      # close joins its reader: stopping robot by robot left
-        for h in self.handles.values():   # the last one driving 0.35 s per robot, over 1 s loaded)
-            h.close()
+        # Every robot gets STOP first (ending a mission writes its log and scores its path,
+        # ~0.4 s each, and robot by robot that left the last one driving for over a second),
+        # then the missions end, then the links close side by side (pyserial's socket:// close
+        # sleeps 0.3 s "to give the server some time").
+        handles = list(self.handles.values())
+        for h in handles:
+            with h.lock:          # no control step is half-way: the next one sees it and commands nothing
+                h.halting = True
+            h._stop_motors()
+        for h in handles:
+            h.halt()
+        closers = [threading.Thread(target=h.close, name=f"close-{h.name}", daemon=True) for h in handles]
+        for t in closers:
+            t.start()
+        for t in closers:
+            t.join(timeout=10.0)
         for d in self._decls:
             try:
                 d.undeclare()

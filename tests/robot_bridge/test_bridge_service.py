@@ -230,9 +230,10 @@ def test_missions_start_together_at_start_ns(lab):
     assert lab["bridge"].handles["r1"].mission_log is not None
 
 
-def test_shutdown_stops_every_robot_before_closing_any_link(lab):
-    # closing a link joins its reader; stopping robot by robot left the last one driving for
-    # 0.35 s per robot before it (over 1 s under load). All robots stop first, then links close.
+def test_shutdown_stops_every_robot_before_ending_any_mission_or_closing_any_link(lab):
+    # closing a link joins its reader and ending a mission writes its log; stopping robot by
+    # robot left the last one driving for 0.35 s per robot (over 1 s under load). All robots
+    # get STOP first, then the missions end, then the links close.
     # (Checked on the order of calls, not on a clock, so the test cannot flake under load.)
     s, world, bridge = lab["session"], lab["world"], lab["bridge"]
     e1, _ = lab["emus"]
@@ -246,9 +247,17 @@ def test_shutdown_stops_every_robot_before_closing_any_link(lab):
                 return method(*a, **k)
             return call
         h.link.stop_motors = spy(h.link.stop_motors, "stop")
+        h.link.set_motors = spy(h.link.set_motors, "motors")
         h.link.close = spy(h.link.close, "close")
+        h.mission_log.close = spy(h.mission_log.close, "log")   # ending a mission: ~0.4 s each
     bridge.close()
     assert world.power(0) == (0, 0) and world.power(1) == (0, 0)
     assert not e1.connected
-    first_close = next(i for i, (what, _) in enumerate(order) if what == "close")
-    assert {n for what, n in order[:first_close] if what == "stop"} == {"r1", "r2"}, order
+    for first in ("log", "close"):     # every robot got STOP before any mission ended or link closed
+        i = next(i for i, (what, _) in enumerate(order) if what == first)
+        assert {n for what, n in order[:i] if what == "stop"} == {"r1", "r2"}, (first, order)
+    assert sorted(n for what, n in order if what == "log") == ["r1", "r2"], order
+    # and once a robot got STOP, its mission's control steps commanded no motors any more
+    for name in ("r1", "r2"):
+        mine = [what for what, n in order if n == name]
+        assert "motors" not in mine[mine.index("stop"):], (name, order)
