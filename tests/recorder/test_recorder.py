@@ -252,3 +252,27 @@ def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(tmp_path):
     path.write_bytes(data[: len(data) // 2])  # as if the recorder was killed half way
     got = [Track.decode(m.payload).stamp_us for m in read_run(path)]
     assert 50 < len(got) < 400 and got == list(range(len(got)))
+
+
+def test_record_counts_every_sample_as_written_or_dropped_when_its_queue_is_full(tmp_path):
+    # a burst far larger than the write queue: the writer drains it every 50 ms, so most of the
+    # burst is dropped, and every sample is either in the file or counted as dropped
+    from recorder.service import record
+
+    stop = threading.Event()
+    with open_session(ZenohSettings(mode="peer", connect=[], listen=[])) as s:
+        pub = s.declare_publisher("arena/robots/zumo1")
+
+        def burst():
+            for i in range(2000):   # a session's own subscriber gets its puts in the put call
+                pub.put(Track(track_id=1, robot="zumo1", stamp_us=i, x=0.001 * i).encode())
+            time.sleep(0.3)
+            stop.set()
+
+        res = record(s, tmp_path / "burst.mcap", ["arena/robots/*"], stop, queue_size=50,
+                     on_ready=lambda: threading.Thread(target=burst, daemon=True).start())
+    assert res.dropped > 0 and res.messages >= 50, (res.messages, res.dropped)
+    assert res.messages + res.dropped == 2000, (res.messages, res.dropped)
+    from arena.messages import decode
+    stamps = [decode(m.payload).stamp_us for m in read_run(tmp_path / "burst.mcap")]
+    assert len(stamps) == res.messages and stamps == sorted(stamps) and stamps[0] == 0, stamps[:5]
