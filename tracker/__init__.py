@@ -27,3 +27,5 @@ Typical use::
         for track in pipe.push(events, t_end_us):               # tracker.objects.TrackedRobot
             print(track.track_id, track.x, track.y, track.yaw, track.state)
 """
+
+import arena  # noqa: F401 - first, so that numba has a writable cache directory (arena._numba_cache_fallback)

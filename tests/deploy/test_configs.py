@@ -112,6 +112,10 @@ def test_systemd_units_run_valid_arena_commands(unit):
     if "router" not in unit:
         role = unit.split("-")[1].split("@")[0].split(".")[0]
         assert cp["Service"]["EnvironmentFile"] == f"/etc/arena/pki/{role}.env"
+    if argv[1] in ("edge", "track") and cp["Service"].get("ProtectSystem") == "strict":
+        # numba kernels: their cache must go to a directory systemd makes writable and keeps
+        env = dict(kv.split("=", 1) for kv in shlex.split(cp["Service"]["Environment"]))
+        assert env.get("NUMBA_CACHE_DIR") == "/var/cache/" + cp["Service"].get("CacheDirectory", "?"), unit
     _check_command(argv[1:], unit)
 
 
