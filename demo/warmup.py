@@ -12,6 +12,7 @@ the services then load the kernels from numba's on-disk cache in a fraction of a
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
 import sys
@@ -24,19 +25,35 @@ KERNELS = ("simulator.dvs:_dvs_block", "simulator.world:_physics_step", "simulat
            "tracker.dbscan:_grid_kernel", "tracker.accumulate:_apply", "tracker.detect:_cluster_moments")
 
 
+def numba_cache_dirs(pkg_dir: Path) -> list[Path]:
+    """Where numba looks for the cached kernels of the package in ``pkg_dir``, in its own order:
+    ``NUMBA_CACHE_DIR`` if set; else the package's ``__pycache__`` if numba can write there; else
+    its user-wide cache (``~/.cache/numba/<package>_<sha1 of the package path>``), which numba
+    uses for a read-only install."""
+    import arena  # noqa: F401 - settles NUMBA_CACHE_DIR first (arena._numba_cache_fallback)
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return [Path(os.environ["NUMBA_CACHE_DIR"])]
+    pkg_dir = Path(os.path.abspath(pkg_dir))
+    pycache = pkg_dir / "__pycache__"
+    if os.access(pycache if pycache.is_dir() else pkg_dir, os.W_OK):
+        return [pycache]
+    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba"
+    return [user / f"{pkg_dir.name}_{hashlib.sha1(str(pkg_dir).encode()).hexdigest()}"]
+
+
 def kernels_cached(kernels: tuple[str, ...] = KERNELS) -> bool:
     """True when numba's cache holds an index for every kernel in ``kernels`` (so the demo can
     skip compiling). Looks for the files only; a stale index just compiles as before."""
-    cache_dir = os.environ.get("NUMBA_CACHE_DIR")
     for kernel in kernels:
         module, func = kernel.split(":")
         pkg, _, leaf = module.rpartition(".")
         spec = importlib.util.find_spec(pkg)
         if spec is None or not spec.submodule_search_locations:
             return False
-        where = Path(cache_dir) if cache_dir else Path(list(spec.submodule_search_locations)[0]) / "__pycache__"
         pattern = f"{leaf}.{func}-*.nbi"
-        if not any(where.rglob(pattern) if cache_dir else where.glob(pattern)):
+        dirs = numba_cache_dirs(Path(list(spec.submodule_search_locations)[0]))
+        if not any(next(d.rglob(pattern), None) is not None for d in dirs if d.is_dir()):
             return False
     return True
 
