@@ -5,6 +5,17 @@ import os as _os
 __version__ = "0.1.0"
 
 
+def numba_writes_beside(pkg_dir: str) -> bool:
+    """Whether numba can cache the kernels of the package in ``pkg_dir`` in its ``__pycache__``."""
+    pycache = _os.path.join(pkg_dir, "__pycache__")
+    return _os.access(pycache if _os.path.isdir(pycache) else pkg_dir, _os.W_OK)
+
+
+def numba_user_cache() -> str:
+    """numba's user-wide cache directory (``$XDG_CACHE_HOME/numba`` or ``~/.cache/numba``)."""
+    return _os.path.join(_os.environ.get("XDG_CACHE_HOME") or _os.path.expanduser("~/.cache"), "numba")
+
+
 def _numba_cache_fallback() -> None:
     """Give numba a cache directory it can write when it has none.
 
@@ -14,18 +25,13 @@ def _numba_cache_fallback() -> None:
     as under the systemd units' ``ProtectSystem=strict``. Then the cache goes to the temp
     directory (set ``NUMBA_CACHE_DIR``, e.g. the units' ``CacheDirectory``, to keep it).
     Runs before numba is imported (numba reads the variable once)."""
-    if _os.environ.get("NUMBA_CACHE_DIR"):
+    if _os.environ.get("NUMBA_CACHE_DIR") or numba_writes_beside(_os.path.dirname(_os.path.abspath(__file__))):
         return
-    here = _os.path.dirname(_os.path.abspath(__file__))
-    pycache = _os.path.join(here, "__pycache__")
-    if _os.access(pycache if _os.path.isdir(pycache) else here, _os.W_OK):
-        return                                   # numba caches beside the sources
     import tempfile
 
-    user = _os.path.join(_os.environ.get("XDG_CACHE_HOME") or _os.path.expanduser("~/.cache"), "numba")
     try:
-        _os.makedirs(user, exist_ok=True)
-        tempfile.TemporaryFile(dir=user).close()
+        _os.makedirs(numba_user_cache(), exist_ok=True)
+        tempfile.TemporaryFile(dir=numba_user_cache()).close()
         return                                   # numba's user-wide cache works
     except OSError:
         pass

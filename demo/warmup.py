@@ -30,16 +30,14 @@ def numba_cache_dirs(pkg_dir: Path) -> list[Path]:
     ``NUMBA_CACHE_DIR`` if set; else the package's ``__pycache__`` if numba can write there; else
     its user-wide cache (``~/.cache/numba/<package>_<sha1 of the package path>``), which numba
     uses for a read-only install."""
-    import arena  # noqa: F401 - settles NUMBA_CACHE_DIR first (arena._numba_cache_fallback)
+    from arena import numba_user_cache, numba_writes_beside   # also settles NUMBA_CACHE_DIR first
 
     if os.environ.get("NUMBA_CACHE_DIR"):
         return [Path(os.environ["NUMBA_CACHE_DIR"])]
     pkg_dir = Path(os.path.abspath(pkg_dir))
-    pycache = pkg_dir / "__pycache__"
-    if os.access(pycache if pycache.is_dir() else pkg_dir, os.W_OK):
-        return [pycache]
-    user = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "numba"
-    return [user / f"{pkg_dir.name}_{hashlib.sha1(str(pkg_dir).encode()).hexdigest()}"]
+    if numba_writes_beside(str(pkg_dir)):
+        return [pkg_dir / "__pycache__"]
+    return [Path(numba_user_cache()) / f"{pkg_dir.name}_{hashlib.sha1(str(pkg_dir).encode()).hexdigest()}"]
 
 
 def kernels_cached(kernels: tuple[str, ...] = KERNELS) -> bool:
