@@ -11,6 +11,14 @@ both sides alike; the summary prints the mean worst lag of each side and their r
 
     python bench/bench_demo_realtime.py                 # 2 pairs of 20 s demos, ~3 min
     python bench/bench_demo_realtime.py --pairs 5 --duration 30
+    python bench/bench_demo_realtime.py --load 0.9      # with another process busy 90 % of a core
+
+``--load F`` runs, beside every demo, a process that keeps F of one core busy (100 ms cycles of
+busy looping and sleeping, at normal priority, ended with the run): the head-room the demo has
+left on this machine. The ``cores`` column is the CPU the demo itself used; on a VM whose host is
+busy the same work costs more CPU seconds. The ``ref ms`` column times a fixed pure-Python loop
+just before each run (best of 5): when it and ``cores`` are both up, the machine was slow, not
+the demo. Compare runs only at similar ``ref ms``.
 """
 
 from __future__ import annotations
@@ -27,21 +35,51 @@ import time
 from pathlib import Path
 
 
-def one_run(nice: int, duration: float, out: Path) -> dict:
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, "-m", "arena", "demo", "--duration", str(duration), "--quiet",
-                           "--observer-nice", str(nice), "--out", str(out)],
-                          capture_output=True, text=True, timeout=duration + 180)
-    wall = time.monotonic() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+#: a competing process: busy for ``load`` of every 100 ms, asleep for the rest, for at most ``limit_s``
+_HOG = ("import sys, time\n"
+        "load, end = float(sys.argv[1]), time.monotonic() + float(sys.argv[2])\n"
+        "while time.monotonic() < end:\n"
+        "    t = time.monotonic()\n"
+        "    while time.monotonic() - t < 0.1 * load:\n"
+        "        pass\n"
+        "    time.sleep(0.1 * (1.0 - load))\n")
+
+
+def reference_ms() -> float:
+    """Best of 5 timings of a fixed single-threaded Python loop: this machine's current speed."""
+    best = float("inf")
+    for _ in range(5):
+        t = time.perf_counter()
+        acc = 0
+        for i in range(300_000):
+            acc += i * i % 7
+        best = min(best, time.perf_counter() - t)
+    return best * 1e3
+
+
+def one_run(nice: int, duration: float, out: Path, load: float = 0.0) -> dict:
+    limit_s = duration + 180
+    ref = reference_ms()
+    hog = subprocess.Popen([sys.executable, "-c", _HOG, str(load), str(limit_s)]) if load > 0 else None
+    try:
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.monotonic()
+        proc = subprocess.run([sys.executable, "-m", "arena", "demo", "--duration", str(duration), "--quiet",
+                               "--observer-nice", str(nice), "--out", str(out)],
+                              capture_output=True, text=True, timeout=limit_s)
+        wall = time.monotonic() - t0
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    finally:
+        if hog is not None:
+            hog.kill()
+            hog.wait()
     if proc.returncode != 0:
         raise SystemExit(f"arena demo failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
     run_dir = max(out.glob("demo-*"), key=lambda p: p.stat().st_mtime)
     summary = json.loads((run_dir / "summary.json").read_text())
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"nice": nice, "rt": summary.get("sim_realtime") or {}, "scores": summary.get("scores") or {},
-            "first_track_s": summary.get("first_track_s"), "cores": cpu / wall,
+            "first_track_s": summary.get("first_track_s"), "cores": cpu / wall, "ref_ms": ref,
             "latency": summary.get("latency") or {}, "windows": summary.get("windows") or {}}
 
 
@@ -50,16 +88,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pairs", type=int, default=2, help="pairs of runs, ours then baseline (default 2)")
     ap.add_argument("--duration", type=float, default=20.0, help="seconds of missions per run (default 20)")
     ap.add_argument("--nice", type=int, default=10, help="observers' niceness of 'ours' (default 10)")
+    ap.add_argument("--load", type=float, default=0.0,
+                    help="fraction of one core a competing process keeps busy during every run (default 0)")
     args = ap.parse_args(argv)
+    if not 0 <= args.load <= 1:
+        ap.error(f"--load is a fraction of one core in [0, 1], got {args.load}")
     print(f"arena demo, 4 robots, {args.duration:g} s missions, {args.pairs} pair(s) of runs "
-          f"(machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})")
+          f"(machine: {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f})"
+          + (f", another process busy {args.load:.0%} of a core" if args.load else ""))
     print(f"{'run':<26}{'RTF':>6}{'worst lag s':>13}{'at t s':>8}{'first track s':>15}{'MOTA':>7}"
-          f"{'MAE cm':>8}{'cores':>7}{'lat p50 ms':>12}{'p99 ms':>8}{'windows lost':>14}")
+          f"{'MAE cm':>8}{'cores':>7}{'ref ms':>8}{'lat p50 ms':>12}{'p99 ms':>8}{'windows lost':>14}")
     lags: dict[int, list[float]] = {args.nice: [], 0: []}
     with tempfile.TemporaryDirectory(prefix="bench-demo-") as tmp:
         for i in range(args.pairs):
             for nice in (args.nice, 0):
-                r = one_run(nice, args.duration, Path(tmp))
+                r = one_run(nice, args.duration, Path(tmp), args.load)
                 rt, s, lat, w = r["rt"], r["scores"], r["latency"], r["windows"]
                 # dropped by the edge, found missing by the tracker or dropped from its queue
                 lost = (str(w["edge_dropped"] + w["tracker_missed"] + w["tracker_queue_dropped"]) if w else "n/a")
@@ -67,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                 label = f"{'ours' if nice else 'baseline'} (observers +{nice}) #{i + 1}"
                 print(f"{label:<26}{rt.get('factor', float('nan')):6.2f}{rt.get('worst_lag_s', float('nan')):13.2f}"
                       f"{rt.get('worst_lag_at_s', float('nan')):8.1f}{r['first_track_s'] or float('nan'):15.1f}"
-                      f"{s.get('mota', float('nan')):7.3f}{s.get('mae_cm', float('nan')):8.2f}{r['cores']:7.2f}"
+                      f"{s.get('mota', float('nan')):7.3f}{s.get('mae_cm', float('nan')):8.2f}{r['cores']:7.2f}{r['ref_ms']:8.1f}"
                       f"{lat.get('p50_ms', float('nan')):12.1f}{lat.get('p99_ms', float('nan')):8.1f}{lost:>14}",
                       flush=True)
     ours, base = statistics.mean(lags[args.nice]), statistics.mean(lags[0])
