@@ -430,10 +430,31 @@ def _windows(mcap_path: Path) -> dict | None:
             "tracker_queue_dropped": t.get("windows_dropped_in_queue", 0)}
 
 
+def _report(run_dir: Path, args, summary: dict, scores, tracks, truth, end_us) -> Path:
+    """Write the run's ``report.md`` (with plots); also scores the webcam ground truth against
+    the exact poses (``summary["webcam"]``)."""
+    from demo.report import read_manifests, webcam_as_tracks, write_demo_report
+    from groundtruth.metrics import evaluate, read_truth_csv
+
+    webcam_scores = None
+    if (run_dir / "groundtruth.csv").exists():
+        cam = read_truth_csv(run_dir / "groundtruth.csv")
+        if end_us is not None:
+            cam = cam[cam["t_us"] <= end_us]
+        webcam_scores = evaluate(webcam_as_tracks(cam), truth, gate_m=0.10)
+        summary["webcam"] = {k: getattr(webcam_scores, k) for k in ("precision", "recall", "mae_cm",
+                                                                     "heading_mae_deg", "n_frames")}
+    setup = (f"{args.robots} robots, {args.mission} missions at {args.power:.0%} power, {args.lighting} light, "
+             f"{args.duration:g} s of missions, seed {args.seed}, tracker `{args.tracker}`, control `{args.control}`.")
+    return write_demo_report(run_dir, setup, summary, scores, tracks, truth, webcam_scores,
+                             read_manifests(run_dir / "telemetry"))
+
+
 def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     """Score the run, write the report, print where everything is."""
     summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "pids": pids, "first_track_s": first_track_s}
     tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
+    scored = None
     if tracks.exists() and truth.exists():
         from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
 
@@ -446,6 +467,7 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
             scores = evaluate(tr, gt, gate_m=0.10)
             summary["scores"] = scores.to_dict()
             summary["ok"] = True
+            scored = (scores, tr, gt, end_us)
         except Exception as exc:  # noqa: BLE001 - report what failed rather than crash at the end
             summary["score_error"] = str(exc)
     rt = _sim_realtime(run_dir / "logs" / "sim.log")
@@ -456,6 +478,11 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
         summary["latency"] = lat
     if wins is not None:
         summary["windows"] = wins
+    if scored is not None:
+        try:
+            summary["report"] = str(_report(run_dir, args, summary, *scored))
+        except Exception as exc:  # noqa: BLE001 - the scores stand without their report
+            summary["report_error"] = f"{type(exc).__name__}: {exc}"
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     s = summary.get("scores", {})
     print("\n=== arena demo: results ===")
@@ -479,6 +506,10 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
         print(f"event windows: the edge published {wins['edge_published']} and dropped {wins['edge_dropped']}; "
               f"the tracker processed {wins['tracker_in']}, found {wins['tracker_missed']} missing and dropped "
               f"{wins['tracker_queue_dropped']} from its queue")
+    if "report" in summary:
+        print(f"report: {summary['report']}  (scores, real time, missions, webcam ground truth, plots)")
+    elif "report_error" in summary:
+        print(f"no report: {summary['report_error']}")
     print(f"run folder: {run_dir}  (tracks.csv, truth.csv, groundtruth.csv, telemetry/, events.raw, arena.mcap, logs/)")
     print(f"watch it again: arena replay {run_dir} & arena view   (then open http://127.0.0.1:8080)")
     return summary

@@ -42,7 +42,8 @@ def fmt(value, spec: str = "{:.4f}") -> str:
     return spec.format(value)
 
 
-def _summary_rows(s: Scores) -> list[tuple[str, str]]:
+def summary_rows(s: Scores) -> list[tuple[str, str]]:
+    """(label, formatted value) of the summary metrics, in :data:`SUMMARY_FIELDS` order."""
     rows = []
     for label, attr, spec in SUMMARY_FIELDS:
         if attr is None:
@@ -52,7 +53,8 @@ def _summary_rows(s: Scores) -> list[tuple[str, str]]:
     return rows
 
 
-def _robot_rows(s: Scores) -> list[list[str]]:
+def robot_rows(s: Scores) -> list[list[str]]:
+    """One row of :data:`ROBOT_HEADERS` per robot."""
     return [[name, str(r.n_gt), fmt(r.recall), fmt(r.mae_cm, "{:.2f}"), fmt(r.heading_mae_deg, "{:.2f}"),
              str(r.id_switches), str(r.fragmentations), r.main_track or "-"]
             for name, r in s.per_robot.items()]
@@ -87,8 +89,8 @@ def format_scores(s: Scores) -> str:
         extra.append(f"{s.n_frames_dropped} frame(s) outside the truth's time span dropped")
     if s.n_ignored:
         extra.append(f"{s.n_ignored} track row(s) on robots that had not moved yet ignored")
-    parts = [head, text_table(["metric", "value"], _summary_rows(s)), "",
-             text_table(ROBOT_HEADERS, _robot_rows(s))]
+    parts = [head, text_table(["metric", "value"], summary_rows(s)), "",
+             text_table(ROBOT_HEADERS, robot_rows(s))]
     if extra:
         parts += [""] + [f"note: {e}" for e in extra]
     return "\n".join(parts)
@@ -182,11 +184,11 @@ def write_eval_report(out_dir: str | Path, s: Scores, tracks: np.ndarray, truth:
         "",
         "## Summary",
         "",
-        markdown_table(["metric", "value"], _summary_rows(s)),
+        markdown_table(["metric", "value"], summary_rows(s)),
         "",
         "## Per robot",
         "",
-        markdown_table(ROBOT_HEADERS, _robot_rows(s)),
+        markdown_table(ROBOT_HEADERS, robot_rows(s)),
         "",
         "## Trajectories",
         "",

@@ -108,6 +108,23 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
     assert s["heading_mae_deg"] <= 10.0, s
     assert set(s["per_robot"]) == {"black0", "yellow1", "red2", "blue3"}, s
 
+    # the scoring report: Markdown with the same scores as summary.json, its plots, one mission
+    # row per robot, and the webcam ground truth scored against the exact poses
+    report = (run_dir / "report.md").read_text()
+    assert summary["report"] == str(run_dir / "report.md") and f"report: {run_dir / 'report.md'}" in out.stdout
+    assert f"| MAE (cm) | {s['mae_cm']:.2f} |" in report and f"| MOTA | {s['mota']:.4f} |" in report, report
+    for png in ("trajectories.png", "errors.png"):
+        data = (run_dir / "report" / png).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000, png
+        assert f"](report/{png})" in report
+    missions = [ln[2:].split(" | ")[:2] for ln in report.split("## Missions")[1].split("\n## ")[0].splitlines() if ln.startswith("| ")]
+    assert sorted(missions[1:]) == [["black0", "circle"], ["blue3", "square"], ["red2", "circle"],
+                                    ["yellow1", "square"]], report
+    assert f"{summary['windows']['edge_published']} published, {summary['windows']['edge_dropped']} dropped" in report
+    cam = summary["webcam"]
+    assert cam["precision"] >= 0.99 and cam["recall"] >= 0.95 and cam["mae_cm"] < 1.0, cam
+    assert f"| {cam['precision']:.4f} | {cam['recall']:.4f} | {cam['mae_cm']:.2f} |" in report
+
     # the bridge closed its loop on the tracks named after its robots (ground truth names them):
     # every robot's tracks were fused, and the robots stayed on their paths
     for manifest in (run_dir / "telemetry").glob("*.json"):
