@@ -56,7 +56,9 @@ class FleetConfig:
             far its robot's shape disagrees with the motion heading while it drives, and
             ignores the shape when that disagreement is large: a round shell).
         yaw_reset_updates: consecutive motion headings more than 45 degrees off the filter
-            that restart it on the motion heading.
+            that restart it on the motion heading; after as many missed windows (the robot
+            may have turned unseen) the first such heading does at once. (After any miss, a
+            robot creeping out of a corner with few events, whose centroid jumps, flipped.)
         confirm_hits: detections needed to confirm a track.
         tentative_max_misses: consecutive misses that delete a tentative track.
         stop_tau_s: time constant with which a coasting track brakes to rest, s.
@@ -262,9 +264,9 @@ class _Track:
                     self._yaw_reset(ob.yaw)
             elif abs(_wrap(ob.yaw - pred)) > math.radians(45):
                 # motion disagrees with the filter: an outlier, or the filter is on a wrong
-                # branch (or the robot turned unseen) when it persists
+                # branch when it persists, or the robot turned while unseen for long
                 self._disagree += 1
-                if self._disagree >= self.cfg.yaw_reset_updates or self.misses > 0:
+                if self._disagree >= self.cfg.yaw_reset_updates or self.misses >= self.cfg.yaw_reset_updates:
                     self._yaw_reset(ob.yaw)
             else:
                 self._disagree = 0
