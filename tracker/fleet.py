@@ -56,9 +56,11 @@ class FleetConfig:
             far its robot's shape disagrees with the motion heading while it drives, and
             ignores the shape when that disagreement is large: a round shell).
         yaw_reset_updates: consecutive motion headings more than 45 degrees off the filter
-            that restart it on the motion heading; after as many missed windows (the robot
-            may have turned unseen) the first such heading does at once. (After any miss, a
-            robot creeping out of a corner with few events, whose centroid jumps, flipped.)
+            that restart it on the motion heading; after as many windows hidden in another
+            robot's cluster (it may have turned there) the first such heading does at once. A
+            window without its cluster otherwise means no motion (an event camera sees every
+            turn), so it does not: a robot creeping out of a corner or starting from rest, with
+            few events and a jumping centroid, flipped by up to 180 degrees when it did.
         confirm_hits: detections needed to confirm a track.
         tentative_max_misses: consecutive misses that delete a tentative track.
         stop_tau_s: time constant with which a coasting track brakes to rest, s.
@@ -165,6 +167,7 @@ class _Track:
         self.age = 0
         self.hits = 1
         self.misses = 0
+        self.hidden = 0             # windows spent hidden in another robot's cluster since last seen
         self.last_seen_us = int(ob.t_us)
         self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
         self.robot: str | None = None
@@ -208,6 +211,7 @@ class _Track:
             self.ay.v *= decay
             self.yaw_rate *= decay
         self.misses += 1
+        self.hidden += bool(moving)
         self.n_events = 0
         if self.state != TENTATIVE:
             self.state = COASTING
@@ -224,6 +228,7 @@ class _Track:
         self._update_yaw(ob)
         self.hits += 1
         self.misses = 0
+        self.hidden = 0
         self.last_seen_us = int(ob.t_us)
         self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
         self.restored = False
@@ -264,9 +269,10 @@ class _Track:
                     self._yaw_reset(ob.yaw)
             elif abs(_wrap(ob.yaw - pred)) > math.radians(45):
                 # motion disagrees with the filter: an outlier, or the filter is on a wrong
-                # branch when it persists, or the robot turned while unseen for long
+                # branch when it persists, or the robot turned while hidden in another's cluster
                 self._disagree += 1
-                if self._disagree >= self.cfg.yaw_reset_updates or self.misses >= self.cfg.yaw_reset_updates:
+                if (self._disagree >= self.cfg.yaw_reset_updates or self.hidden >= self.cfg.yaw_reset_updates
+                        or self.restored):   # restored from a snapshot: it may have moved meanwhile
                     self._yaw_reset(ob.yaw)
             else:
                 self._disagree = 0
