@@ -170,6 +170,41 @@ _FAST = zstandard.ZstdCompressionParameters(window_log=17, hash_log=12, chain_lo
                                             target_length=0, strategy=zstandard.STRATEGY_FAST)
 
 
+@njit(cache=True, nogil=True)
+def _key_pass(xs, ys, ps, ts, base, key):
+    """The lossy codec's sort keys ``ms << 28 | y << 12 | p << 11 | x`` (ms counted from the
+    first whole millisecond of ``base``'s grid at or before the earliest event); returns that
+    millisecond's time, or (0, False) when a key would not fit (x >= 2048, y >= 65536 or a
+    span over 2^35 ms): the caller then sorts without packing."""
+    t_lo = ts[0]
+    for i in range(ts.size):
+        if ts[i] < t_lo:
+            t_lo = ts[i]
+    t_min = base + (t_lo - base) // 1000 * 1000
+    for i in range(xs.size):
+        ms = (ts[i] - t_min) // 1000
+        x = np.int64(xs[i])
+        if x >= 2048 or ms >= (1 << 35):
+            return t_min, False
+        key[i] = (ms << 28) | (np.int64(ys[i]) << 12) | ((np.int64(ps[i]) & 1) << 11) | x
+    return t_min, True
+
+
+def _lossy_keys(xs, ys, ps, ts, base: int, key: np.ndarray) -> int | None:
+    t_min, ok = _key_pass(xs, ys, ps, ts, base, key)
+    return int(t_min) if ok else None
+
+
+@njit(cache=True, nogil=True)
+def _unpack_keys(key, t_min, xs, ys, ps, ts):
+    for i in range(key.size):
+        k = key[i]
+        xs[i] = k & 0x7FF
+        ps[i] = (k >> 11) & 1
+        ys[i] = (k >> 12) & 0xFFFF
+        ts[i] = t_min + (k >> 28) * 1000
+
+
 def _compressor(level: int) -> zstandard.ZstdCompressor:
     """A zstd compressor of ``level`` (1: the tuned :data:`_FAST` parameters) reused within the
     calling thread (they are not thread-safe)."""
@@ -215,13 +250,16 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     if codec == LOSSY_CODEC and n:
         # floor to 1 ms; within one millisecond the order carries no information any more, so
         # sort by (ms, y, p, x), which turns the events into cheap runs
-        t_min = base + (int(ts.min()) - base) // 1000 * 1000
-        ms = (ts - t_min) // 1000
-        if int(ms.max()) < 1 << 35 and int(xs.max()) < _MAX_X:  # one packed key, sorted, unpacked
-            key = np.sort((ms << 28) | (ys.astype(np.int64) << 12) | (ps.astype(np.int64) & 1) << 11 | xs)
-            xs, ps, ys = key & 0x7FF, (key >> 11) & 1, (key >> 12) & 0xFFFF
-            ts = t_min + (key >> 28) * 1000
+        key = np.empty(n, np.int64)
+        t_min = _lossy_keys(xs, ys, ps, ts, base, key)
+        if t_min is not None:   # one packed key per event, sorted, unpacked
+            key.sort()
+            xs, ys, ps, ts = (np.empty(n, np.uint16), np.empty(n, np.uint16), np.empty(n, np.uint8),
+                              np.empty(n, np.int64))
+            _unpack_keys(key, t_min, xs, ys, ps, ts)
         else:
+            t_min = base + (int(ts.min()) - base) // 1000 * 1000
+            ms = (ts - t_min) // 1000
             order = np.lexsort((xs, ps, ys, ms))
             xs, ys, ps, ts = xs[order], ys[order], ps[order], t_min + ms[order] * 1000
     ctrl = np.empty(n, np.uint8)

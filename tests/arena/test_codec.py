@@ -53,6 +53,15 @@ def test_lossy_keeps_every_event_with_its_millisecond(ev):
     assert np.all(np.diff(out["t"]) >= 0)
 
 
+def test_lossy_handles_a_span_too_long_to_pack_and_refuses_wide_sensors():
+    # times more than 2^35 ms apart do not fit the packed sort key: sorted the slow way
+    ev = make_events([5, 3, 4], [1, 1, 0], [1, 0, 1], [7_000, (1 << 36) * 1000 + 5, 7_999])
+    out = decode(LOSSY_CODEC, encode(ev, LOSSY_CODEC, t_ref_us=0), 3)
+    assert out.tolist() == [(4, 0, 1, 7_000), (5, 1, 1, 7_000), (3, 1, 0, (1 << 36) * 1000)]
+    with pytest.raises(CodecError, match="x < 2048"):
+        encode(make_events([3000], [1], [1], [0]), LOSSY_CODEC)
+
+
 def test_lossy_is_compact_on_scattered_events():
     rng = np.random.default_rng(1)
     n = 20_000  # scattered, µs-distinct times: hard for the lossless coder
