@@ -27,6 +27,9 @@ _PR_SET_PDEATHSIG = 1
 
 
 def _child_setup(nice: int = 0) -> None:  # runs in the child between fork and exec
+    # a process group of its own: a terminal's Ctrl-C (SIGINT to the whole foreground group)
+    # reaches only the launcher, which then stops its children in order, robots first
+    os.setpgrp()
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)  # die with the launcher

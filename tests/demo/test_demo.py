@@ -131,3 +131,42 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
         m = json.loads(manifest.read_text())
         assert m["control"] == "closed" and m["fusion"]["tracks_used"] > 100, (manifest.name, m.get("fusion"))
         assert m["path_error_tracks"]["mean_m"] < 0.03, (manifest.name, m["path_error_tracks"])
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_the_terminal_stops_the_robots_first_and_leaves_nothing_running(tmp_path):
+    # a terminal's Ctrl-C sends SIGINT to its whole foreground process group: the demo leads one
+    # here (as a shell job would) and gets it with every process it started in that group
+    import signal
+    import time
+
+    proc = subprocess.Popen(arena_cmd("demo", "--duration", "60", "--out", str(tmp_path), "--quiet"),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("missions started"):
+                break
+        assert lines and lines[-1].startswith("missions started"), "".join(lines)
+        time.sleep(2.0)                       # the robots drive
+        os.killpg(proc.pid, signal.SIGINT)
+        rest, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    out = "".join(lines) + rest
+    assert proc.returncode == 130, out[-3000:]
+    assert "interrupted, stopping (robots first)" in out
+    run_dir = next(tmp_path.iterdir())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert not [n for n, pid in summary["pids"].items() if _alive(pid)]
+    # the demo stopped its children itself, in order (SIGTERM: 0 or -15), none died of the SIGINT
+    assert all(code in (0, -15) for code in summary["exit_codes"].values()), summary["exit_codes"]
+    # robots first: the bridge ended every mission itself, its links still up (the simulated
+    # robots were still there when it sent them STOP)
+    manifests = [json.loads(p.read_text()) for p in (run_dir / "telemetry").glob("*.json")]
+    assert len(manifests) == 4
+    for m in manifests:
+        assert m["status"] == "interrupted: bridge shut down" and m["link"]["disconnects"] == 0, m["status"]
+    assert summary["scores"]["n_frames"] > 100 and (run_dir / "report.md").exists()
