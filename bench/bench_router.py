@@ -7,6 +7,9 @@ One subscriber process (the tracker's place) receives all cameras. Two layouts, 
 
   router   every process is a client of one `arena router` (the multi-host layout, via loopback)
   p2p      publishers connect straight to the subscriber in peer mode (no router: the baseline)
+  tls      with ``--tls``: the router of the lab deployment (deploy/zenoh/router.json5: TLS with
+           client certificates, user/password and the access-control policy; certificates made
+           by ``arena certs`` for 127.0.0.1), publishers as the edge, the subscriber as the tracker
 
 Printed per camera and layout: windows sent and received, drops (sequence gaps at the
 subscriber), events/s delivered, latency publish -> receive (p50/p99, ms, one host clock), then
@@ -15,6 +18,7 @@ the totals side by side with the router/p2p ratio.
     python bench/bench_router.py                         # 4 cameras, 100 Hz, 5000 ev/window, 4 s
     python bench/bench_router.py --cameras 2 --rate 0    # as fast as possible
     python bench/bench_router.py --events 20000 --seconds 6
+    python bench/bench_router.py --tls                   # also through the secured router
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -70,10 +75,10 @@ def run_publisher(args) -> int:
     import zenoh
 
     from arena.messages import EventWindow
-    from arena.session import ZenohSettings, open_session
+    from arena.session import open_session
 
     windows = synthetic_windows(20, args.events, seed=hash(args.camera) & 0xFFFF)
-    settings = ZenohSettings(mode=args.mode, connect=[args.endpoint], listen=[])
+    settings = _settings(args.mode, [args.endpoint], [])
     sent = 0
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     with open_session(settings, wait_s=10) as session:
@@ -102,9 +107,21 @@ def run_publisher(args) -> int:
     return 0
 
 
+def _settings(mode: str, connect: list[str], listen: list[str]):
+    """Session settings of a bench process; a TLS run adds the role's config file and
+    credentials through the same variables the systemd units set."""
+    from arena.session import ZenohSettings
+
+    st = ZenohSettings(mode=mode, connect=connect, listen=listen)
+    st.config_file = os.environ.get("ARENA_ZENOH_CONFIG") or None
+    if os.environ.get("ARENA_ZENOH_USER"):
+        st.user, st.password = os.environ["ARENA_ZENOH_USER"], os.environ.get("ARENA_ZENOH_PASSWORD", "")
+    return st
+
+
 def run_subscriber(args) -> int:
     from arena.messages import EventWindow, MessageError, decode
-    from arena.session import ZenohSettings, open_session
+    from arena.session import open_session
 
     stats: dict[str, dict] = {}
     lock = threading.Lock()
@@ -128,7 +145,7 @@ def run_subscriber(args) -> int:
 
     listen = [args.endpoint] if args.mode == "peer" else []
     connect = [] if args.mode == "peer" else [args.endpoint]
-    settings = ZenohSettings(mode=args.mode, connect=connect, listen=listen)
+    settings = _settings(args.mode, connect, listen)
     with open_session(settings, wait_s=10) as session:
         sub = session.declare_subscriber("arena/events/*", on_sample)
         print(json.dumps({"ready": True}), flush=True)
@@ -151,16 +168,46 @@ def _me(*args: str) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), *args]
 
 
+def _tls_lab(root: Path, endpoint: str, env: dict) -> tuple[list[str], dict, dict]:
+    """The deployment's router and client configs (deploy/zenoh) with certificates for
+    127.0.0.1: the router's argv, and the environments of an edge (camera host) and a tracker."""
+    pki = root / "pki"
+    subprocess.run([sys.executable, "-m", "arena", "certs", str(pki), "--hosts",
+                    "router=127.0.0.1,camera=127.0.0.1,tracker=127.0.0.1"], check=True, capture_output=True, env=env)
+    passwords = dict(line.split(":", 1) for line in (pki / "users.txt").read_text().split())
+    deploy = REPO / "deploy" / "zenoh"
+    router = root / "router.json5"
+    router.write_text((deploy / "router.json5").read_text().replace("/etc/arena/pki/", f"{pki}/")
+                      .replace('"tls/0.0.0.0:7447"', f'"{endpoint}"'))
+
+    def client(host: str, user: str) -> dict:
+        path = root / f"client-{host}.json5"
+        path.write_text((deploy / "client.json5").read_text()
+                        .replace("/etc/arena/pki/host.pem", f"{pki}/{host}.pem")
+                        .replace("/etc/arena/pki/host.key", f"{pki}/{host}.key")
+                        .replace("/etc/arena/pki/", f"{pki}/"))
+        return {**env, "ARENA_ZENOH_CONFIG": str(path), "ARENA_ZENOH_USER": user,
+                "ARENA_ZENOH_PASSWORD": passwords[user]}
+
+    return ([sys.executable, "-m", "arena", "router", "--zenoh-config", str(router)],
+            client("camera", "edge"), client("tracker", "tracker"))
+
+
 def run_layout(layout: str, cameras: int, rate: float, events: int, seconds: float) -> dict:
     """Run one layout and return {camera: stats} merged from the publishers and the subscriber."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(REPO)}
+    pub_env = sub_env = env
     procs: list[subprocess.Popen] = []
+    tmp = tempfile.TemporaryDirectory(prefix="bench-router-")
     try:
         port = free_port()
         endpoint = f"tcp/127.0.0.1:{port}"
-        if layout == "router":
-            router = subprocess.Popen([sys.executable, "-m", "arena", "router", "-l", endpoint],
-                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+        router_cmd = [sys.executable, "-m", "arena", "router", "-l", endpoint]
+        if layout == "tls":
+            endpoint = f"tls/127.0.0.1:{port}"
+            router_cmd, pub_env, sub_env = _tls_lab(Path(tmp.name), endpoint, env)
+        if layout in ("router", "tls"):
+            router = subprocess.Popen(router_cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
             procs.append(router)
             line = router.stdout.readline()
             if "listening" not in line:
@@ -170,14 +217,14 @@ def run_layout(layout: str, cameras: int, rate: float, events: int, seconds: flo
             mode = "peer"
         warmup = 2.0
         sub = subprocess.Popen(_me("--role", "sub", "--mode", mode, "--endpoint", endpoint),
-                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=sub_env)
         procs.append(sub)
         if "ready" not in sub.stdout.readline():
             raise SystemExit("bench_router: the subscriber did not start")
         pubs = [subprocess.Popen(_me("--role", "pub", "--mode", mode, "--endpoint", endpoint,
                                      "--camera", f"cam{i}", "--rate", str(rate), "--events", str(events),
                                      "--seconds", str(seconds), "--warmup", str(warmup)),
-                                 stdout=subprocess.PIPE, text=True, env=env) for i in range(cameras)]
+                                 stdout=subprocess.PIPE, text=True, env=pub_env) for i in range(cameras)]
         procs += pubs
         sent = {}
         for p in pubs:
@@ -195,6 +242,7 @@ def run_layout(layout: str, cameras: int, rate: float, events: int, seconds: flo
                     p.wait(timeout=5)
                 except subprocess.TimeoutExpired:
                     p.kill()
+        tmp.cleanup()
     result = {}
     for cam, d in sorted(sent.items()):
         st = stats.get(cam, {"received": 0, "events": 0, "events_per_s": 0.0, "lat_p50": float("nan"),
@@ -210,6 +258,8 @@ def main() -> int:
     p.add_argument("--rate", type=float, default=100.0, help="windows/s per camera (0 = max; default 100)")
     p.add_argument("--events", type=int, default=5000, help="events per window (default 5000 = 500k ev/s at 100 Hz)")
     p.add_argument("--seconds", type=float, default=4.0, help="publishing time per layout (default 4)")
+    p.add_argument("--tls", action="store_true",
+                   help="also run through the lab deployment's secured router (TLS, mTLS, passwords, ACL)")
     p.add_argument("--role", choices=["pub", "sub"], help=argparse.SUPPRESS)
     p.add_argument("--mode", help=argparse.SUPPRESS)
     p.add_argument("--endpoint", help=argparse.SUPPRESS)
@@ -224,7 +274,7 @@ def main() -> int:
         p.error("need 1 <= --cameras <= 16, --rate >= 0, 1 <= --events <= 1e6, 0.5 <= --seconds <= 60")
 
     results = {}
-    for layout in ("router", "p2p"):
+    for layout in ("router", "p2p", "tls") if args.tls else ("router", "p2p"):
         print(f"running {layout}: {args.cameras} cameras x {args.rate or 'max'} Hz x {args.events} events, "
               f"{args.seconds:g} s ...", flush=True)
         results[layout] = run_layout(layout, args.cameras, args.rate, args.events, args.seconds)
@@ -243,13 +293,15 @@ def main() -> int:
         p50 = float(np.median([r["lat_p50"] for r in res.values()]))
         p99 = float(max(r["lat_p99"] for r in res.values()))
         tot[layout] = (sent, recv, evs, p50, p99)
-    (rs, rr, re_, r50, r99), (ps, pr, pe, p50, p99) = tot["router"], tot["p2p"]
-    print(f"\n{'total':<22} {'router':>12} {'p2p':>12} {'router/p2p':>11}")
-    print(f"{'windows received':<22} {rr:>12} {pr:>12} {rr / max(pr, 1):>11.2f}")
-    print(f"{'drop rate':<22} {1 - rr / max(rs, 1):>11.2%} {1 - pr / max(ps, 1):>11.2%}")
-    print(f"{'events/s delivered':<22} {re_ / 1e6:>10.2f}M {pe / 1e6:>10.2f}M {re_ / max(pe, 1):>11.2f}")
-    print(f"{'latency p50 (ms)':<22} {r50:>12.2f} {p50:>12.2f} {r50 / max(p50, 1e-9):>11.2f}")
-    print(f"{'latency p99 (ms)':<22} {r99:>12.2f} {p99:>12.2f} {r99 / max(p99, 1e-9):>11.2f}")
+    names = list(tot)
+    ratios = [("router", "p2p")] + ([("tls", "router")] if "tls" in tot else [])
+    print(f"\n{'total':<22}" + "".join(f"{n:>12}" for n in names) + "".join(f"{a + '/' + b:>12}" for a, b in ratios))
+    rows = [("windows received", 1, "{:>12d}", lambda v: v), ("events/s delivered", 2, "{:>11.2f}M", lambda v: v / 1e6),
+            ("latency p50 (ms)", 3, "{:>12.2f}", lambda v: v), ("latency p99 (ms)", 4, "{:>12.2f}", lambda v: v)]
+    print(f"{'drop rate':<22}" + "".join(f"{1 - tot[n][1] / max(tot[n][0], 1):>11.2%} " for n in names))
+    for label, k, fmt, conv in rows:
+        print(f"{label:<22}" + "".join(fmt.format(conv(tot[n][k])) for n in names)
+              + "".join(f"{tot[a][k] / max(tot[b][k], 1e-9):>12.2f}" for a, b in ratios))
     return 0
 
 
