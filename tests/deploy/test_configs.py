@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import configparser
 import functools
+import re
 import shlex
+import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -135,3 +138,53 @@ def test_compose_services_run_valid_arena_commands():
         if _registered(svc["command"]):
             _parser().parse_args(svc["command"])
     assert not missing, f"compose refers to files `arena certs` does not make: {missing}"
+
+
+def _systemd_analyze() -> str:
+    exe = shutil.which("systemd-analyze")
+    if exe is None or not Path("/lib/systemd/system/sysinit.target").exists():
+        pytest.skip("needs systemd-analyze and the system's unit files (the systemd package)")
+    return exe
+
+
+def test_systemd_units_pass_systemd_analyze_verify(tmp_path):
+    # systemd's own checks (unknown or misspelt keys, bad values, a missing executable, ...) on
+    # a root holding the units where the deployment guide installs them and the venv's `arena`
+    exe = _systemd_analyze()
+    root = tmp_path / "root"
+    (root / "usr/lib/systemd").mkdir(parents=True)
+    shutil.copytree("/lib/systemd/system", root / "usr/lib/systemd/system", symlinks=True)
+    (root / "etc/systemd/system").mkdir(parents=True)
+    for unit in (DEPLOY / "systemd").glob("*.service"):
+        shutil.copy(unit, root / "etc/systemd/system" / unit.name)
+    (root / "opt/arena/bin").mkdir(parents=True)
+    arena = root / "opt/arena/bin/arena"
+    arena.write_text(f"#!/bin/sh\nexec {sys.executable} -m arena \"$@\"\n")
+    arena.chmod(0o755)
+    units = [u.name.replace("@.", "@cam0.") for u in (DEPLOY / "systemd").glob("*.service")]
+    out = subprocess.run([exe, "verify", f"--root={root}", *units], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout + out.stderr == "", out.stdout + out.stderr
+
+
+@pytest.mark.parametrize("unit", sorted(p.name for p in (DEPLOY / "systemd").glob("*.service")))
+def test_systemd_units_are_sandboxed(unit, tmp_path):
+    # `systemd-analyze security` rates a unit's exposure from 0 (locked down) to 10; systemd
+    # calls <= 4 "OK". The units run as `arena` with no capabilities, kernel, control groups and
+    # other users' processes out of reach, only IP, local and netlink sockets
+    exe = _systemd_analyze()
+    path = tmp_path / unit.replace("@.", "@cam0.")
+    shutil.copy(DEPLOY / "systemd" / unit, path)
+    out = subprocess.run([exe, "security", "--offline=true", "--no-pager", str(path)], capture_output=True,
+                         text=True, timeout=60)
+    m = re.search(r"Overall exposure level for \S+: ([\d.]+)", out.stdout + out.stderr)
+    assert m, out.stdout[-2000:] + out.stderr[-2000:]
+    assert float(m[1]) <= 4.0, f"{unit}: exposure {m[1]}\n" + "\n".join(
+        ln for ln in out.stdout.splitlines() if ln.startswith("✗"))
+    cp = configparser.ConfigParser(strict=False, interpolation=None)
+    cp.read(DEPLOY / "systemd" / unit)
+    svc = cp["Service"]
+    assert svc.get("User") == "arena" and svc.get("CapabilityBoundingSet") == ""
+    # ProtectClock= implies a DeviceAllow= rule, which closes every other device: never on the
+    # units that open cameras or serial links
+    if "PrivateDevices" not in svc:
+        assert "ProtectClock" not in svc, unit
