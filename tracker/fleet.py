@@ -71,6 +71,13 @@ class FleetConfig:
             that confirms within this distance of it, m (the robot drove on meanwhile), or
             within how far a robot at ``max_speed_mps`` can have driven since it was last seen.
         max_speed_mps: the fleet's top speed, m/s (Zumo-class robots: 0.46), with a margin.
+        sparse_fraction: a detection with fewer events than this fraction of its robot's
+            usual count while moving comes from part of the outline only: a robot creeping out
+            of a turn on the spot, whose event centroid sits up to 5 cm off the chassis centre.
+            Its position then counts less (variance times (fraction * usual / events)^2) and its
+            velocity is taken as zero (few events, little motion). The usual count follows the
+            detections of the moving robot with a ~1 s memory, so a robot that keeps driving
+            slowly is soon tracked normally again. 0 turns this off.
     """
 
     chassis_m: float = 0.10
@@ -90,6 +97,7 @@ class FleetConfig:
     lost_s: float = 2.0
     reclaim_m: float = 1.0
     max_speed_mps: float = 0.6
+    sparse_fraction: float = 0.3
 
     def validate(self) -> None:
         for name in ("chassis_m", "gate_m", "accel_mps2", "pos_sigma_m", "vel_sigma_mps",
@@ -97,6 +105,8 @@ class FleetConfig:
             val = getattr(self, name)
             if not (val > 0 and math.isfinite(val)):
                 raise ValueError(f"fleet tracker {name} must be a positive number, got {val!r}")
+        if not 0 <= self.sparse_fraction < 1:
+            raise ValueError(f"fleet tracker sparse_fraction must be in [0, 1), got {self.sparse_fraction!r}")
         if self.confirm_hits < 1 or self.tentative_max_misses < 1:
             raise ValueError("confirm_hits and tentative_max_misses must be >= 1")
         if self.fleet_size is not None and self.fleet_size < 1:
@@ -168,6 +178,7 @@ class _Track:
         self.hits = 1
         self.misses = 0
         self.hidden = 0             # windows spent hidden in another robot's cluster since last seen
+        self.n_usual = 0.0          # events in this robot's detections while it moves (running mean)
         self.last_seen_us = int(ob.t_us)
         self.u, self.v, self.n_events = ob.u, ob.v, ob.n_events
         self.robot: str | None = None
@@ -219,12 +230,20 @@ class _Track:
     def update(self, ob: Observation) -> None:
         cfg = self.cfg
         r = cfg.pos_sigma_m ** 2
+        sparse = 0 < ob.n_events < cfg.sparse_fraction * self.n_usual
+        if sparse:   # part of the outline: its centroid is off; little motion
+            r *= (cfg.sparse_fraction * self.n_usual / ob.n_events) ** 2
         self.ax.update_p(ob.x, r)
         self.ay.update_p(ob.y, r)
-        if math.isfinite(ob.vx) and math.isfinite(ob.vy):
+        if sparse:
+            self.ax.update_v(0.0, cfg.vel_sigma_mps ** 2)
+            self.ay.update_v(0.0, cfg.vel_sigma_mps ** 2)
+        elif math.isfinite(ob.vx) and math.isfinite(ob.vy):
             sv = max(cfg.vel_sigma_mps, ob.speed_sigma if math.isfinite(ob.speed_sigma) else 0.0)
             self.ax.update_v(ob.vx, sv * sv)
             self.ay.update_v(ob.vy, sv * sv)
+        if ob.n_events > 0 and math.isfinite(ob.vx) and math.hypot(ob.vx, ob.vy) > cfg.min_speed_mps:
+            self.n_usual += 0.01 * (ob.n_events - self.n_usual) if self.n_usual else ob.n_events
         self._update_yaw(ob)
         self.hits += 1
         self.misses = 0

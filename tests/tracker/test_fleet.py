@@ -337,3 +337,40 @@ def test_restore_rejects_snapshots_it_cannot_read_and_rebases_a_restarted_clock(
     assert [(t.track_id, round(t.x, 6), t.state) for t in out] == [(2, 0.5, "coasting")]
     out = ft.update([ob(0.52, 0.5, 1_010_000, 0.2, 0.0)], 1_010_000)
     assert [(t.track_id, t.state) for t in out] == [(2, "confirmed")]
+
+
+def _drive_events(ft, frames, x0, y0, vx, vy, n_events, k0=0):
+    """``frames`` detections of a robot driving at (vx, vy) m/s, ``n_events`` events each."""
+    out = None
+    for k in range(frames):
+        t = (k0 + k + 1) * DT
+        x, y = x0 + vx * (k + 1) * DT * 1e-6, y0 + vy * (k + 1) * DT * 1e-6
+        o = Observation(x=x, y=y, t_us=t, vx=vx, vy=vy, yaw=math.atan2(vy, vx) if vx or vy else math.nan,
+                        speed_sigma=0.01, t_vel_us=t, n_events=n_events)
+        out = ft.update([o], t)
+    return out, x, y
+
+
+@pytest.mark.parametrize("sparse_fraction, held", [(0.3, True), (0.0, False)])
+def test_a_sparse_cluster_at_the_end_of_a_turn_does_not_drag_the_position(sparse_fraction, held):
+    # creeping out of a zero-point turn, a robot fires a few hundred events from part of its
+    # outline: their centroid drifts up to 5 cm off the chassis centre, with an apparent motion
+    ft = FleetTracker(FleetConfig(sparse_fraction=sparse_fraction))
+    _, x0, y0 = _drive_events(ft, 40, 0.5, 0.5, 0.4, 0.0, 8000)
+    for k in range(30):                                   # centroid slides 3 cm sideways, 500 events
+        t = (41 + k) * DT
+        o = Observation(x=x0, y=y0 + 0.001 * (k + 1), t_us=t, vx=0.0, vy=0.1, speed_sigma=0.01, t_vel_us=t,
+                        n_events=500)
+        out = ft.update([o], t)
+    off = math.hypot(out[0].x - x0, out[0].y - y0)
+    assert (off < 0.01) if held else (off > 0.02), off
+
+
+def test_a_robot_that_keeps_driving_slowly_is_soon_tracked_closely_again():
+    # a robot slowing from 0.4 to 0.06 m/s for good fires far fewer events: after a second the
+    # track follows it as closely as before (the usual event count follows the moving robot)
+    ft = FleetTracker()
+    _, x0, y0 = _drive_events(ft, 40, 0.3, 0.5, 0.4, 0.0, 8000)
+    out, x, y = _drive_events(ft, 200, x0, y0, 0.06, 0.0, 1200, k0=40)
+    assert abs(out[0].x - x) < 0.003 and out[0].vx == pytest.approx(0.06, abs=0.01)
+    assert ft.tracks[0].n_usual < 2400                    # below the fraction's reach of 1200
