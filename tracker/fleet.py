@@ -74,8 +74,9 @@ class FleetConfig:
         sparse_fraction: a detection with fewer events than this fraction of its robot's
             usual count while moving comes from part of the outline only: a robot creeping out
             of a turn on the spot, whose event centroid sits up to 5 cm off the chassis centre.
-            Its position then counts less (variance times (fraction * usual / events)^2) and its
-            velocity is taken as zero (few events, little motion). The usual count follows the
+            Its position then counts less (variance times (fraction * usual / events)^2), its
+            velocity is taken as zero (few events, little motion) and its apparent motion gives
+            no heading. The usual count follows the
             detections of the moving robot with a ~1 s memory, so a robot that keeps driving
             slowly is soon tracked normally again. 0 turns this off.
     """
@@ -244,7 +245,7 @@ class _Track:
             self.ay.update_v(ob.vy, sv * sv)
         if ob.n_events > 0 and math.isfinite(ob.vx) and math.hypot(ob.vx, ob.vy) > cfg.min_speed_mps:
             self.n_usual += 0.01 * (ob.n_events - self.n_usual) if self.n_usual else ob.n_events
-        self._update_yaw(ob)
+        self._update_yaw(ob, sparse)
         self.hits += 1
         self.misses = 0
         self.hidden = 0
@@ -256,7 +257,7 @@ class _Track:
         elif self.state == COASTING:
             self.state = CONFIRMED
 
-    def _update_yaw(self, ob: Observation) -> None:
+    def _update_yaw(self, ob: Observation, sparse: bool = False) -> None:
         """Heading filter. Two measurements, both at the window's mean event time ``t_vel``
         (the filter's yaw rate carries them to the pose time, so the heading does not lag):
         the motion direction (when moving; it fixes the sign) and the shape orientation
@@ -279,7 +280,8 @@ class _Track:
         lag = ((t_ref - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
         speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
         spinning = not math.isnan(self.yaw) and abs(self.yaw_rate) * self.cfg.spin_radius_m > speed
-        if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps and not spinning:
+        # a sparse cluster's apparent motion is its centroid sliding, not the robot driving
+        if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps and not spinning and not sparse:
             pred = self.yaw - self.yaw_rate * lag
             if math.isnan(self.yaw):
                 # the first heading needs a clear motion (a starting robot's cluster grows

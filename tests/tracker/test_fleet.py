@@ -374,3 +374,18 @@ def test_a_robot_that_keeps_driving_slowly_is_soon_tracked_closely_again():
     out, x, y = _drive_events(ft, 200, x0, y0, 0.06, 0.0, 1200, k0=40)
     assert abs(out[0].x - x) < 0.003 and out[0].vx == pytest.approx(0.06, abs=0.01)
     assert ft.tracks[0].n_usual < 2400                    # below the fraction's reach of 1200
+
+
+@pytest.mark.parametrize("sparse_fraction, held", [(0.3, True), (0.0, False)])
+def test_a_sparse_clusters_apparent_motion_gives_no_heading(sparse_fraction, held):
+    # creeping out of a turn, the partial outline's centroid slides "backwards" for 0.15 s: more
+    # than the 8 disagreeing updates that would restart the heading on that motion (a flip)
+    ft = FleetTracker(FleetConfig(sparse_fraction=sparse_fraction))
+    _, x0, y0 = _drive_events(ft, 40, 0.5, 0.5, 0.4, 0.0, 8000)
+    for k in range(15):
+        t = (41 + k) * DT
+        o = Observation(x=x0 - 0.0012 * (k + 1), y=y0, t_us=t, vx=-0.12, vy=0.0, yaw=math.pi, speed_sigma=0.01,
+                        t_vel_us=t, n_events=500)
+        out = ft.update([o], t)
+    flipped = abs(math.remainder(out[0].yaw, 2 * math.pi)) > math.radians(90)
+    assert flipped != held, out[0].yaw
