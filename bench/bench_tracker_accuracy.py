@@ -95,6 +95,9 @@ def recorded_runs(dirs: list[str]) -> list[tuple[str, SimpleNamespace, np.ndarra
 
     out = []
     for d in map(Path, dirs):
+        missing = [f for f in ("events.raw", "truth.csv", "cam0.calib.json") if not (d / f).is_file()]
+        if missing:
+            raise SystemExit(f"bench_tracker_accuracy: {d} is not an arena demo run folder (no {', '.join(missing)})")
         events, _, _ = read_events(d / "events.raw")
         truth = read_truth_csv(d / "truth.csv")
         summary = json.loads((d / "summary.json").read_text()) if (d / "summary.json").exists() else {}
@@ -119,14 +122,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"unknown tracker {m!r}; choose from {', '.join(MODES)}", file=sys.stderr)
             return 2
     rows = []
+    runs = recorded_runs(args.run) if args.run else None   # read first: a wrong folder fails at once
     hdr = (f"{'scenario':<22} {'tracker':<8} {'prec':>6} {'rec':>6} {'MAE cm':>7} {'p99 cm':>7} {'hdg deg':>8} {'flips %':>8} "
            f"{'MOTA':>6} {'IDsw':>4} {'ms/sl':>6} | paper prec/rec/MAE/MOTA")
     print(hdr)
     print("-" * len(hdr))
 
     def cases():
-        if args.run:
-            yield from ((label, rec, truth, None) for label, rec, truth in recorded_runs(args.run))
+        if runs is not None:
+            yield from ((label, rec, truth, None) for label, rec, truth in runs)
             return
         for label, sc in scenarios(args.quick):
             if not args.only or label in args.only:
