@@ -69,12 +69,34 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _free_port() -> int:
+def _free_ports(n: int) -> int:
+    """The first of ``n`` consecutive TCP ports free on loopback, below the kernel's ephemeral
+    range (there no outgoing connection takes one before the services listen on them). A single
+    free port from the kernel was not enough: the robots listen on consecutive ports, and the
+    one after it was sometimes in use ("Address already in use", the demo failed)."""
+    import random
     import socket
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = 32768
+    low = max(low, 10_000 + 2 * n)
+    for _ in range(200):
+        base = random.randrange(10_000, low - n)
+        socks = []
+        try:
+            for port in range(base, base + n):
+                sock = socket.socket()
+                socks.append(sock)
+                sock.bind(("127.0.0.1", port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for sock in socks:
+                sock.close()
+    raise RuntimeError(f"no {n} consecutive free TCP ports on 127.0.0.1 between 10000 and {low}")
 
 
 def _mission_for(i: int, mission: str) -> str:
@@ -136,9 +158,10 @@ def run(args) -> int:
     run_dir = Path(args.out) / datetime.now().strftime("demo-%Y%m%d-%H%M%S")
     run_dir.mkdir(parents=True, exist_ok=False)
     logs = run_dir / "logs"
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    base = _free_ports(3 + args.robots)   # router, camera, webcam, one per robot
+    endpoint = f"tcp/127.0.0.1:{base}"
     z = ["-e", endpoint]
-    cam_port, web_port, robot_base = _free_port(), _free_port(), _free_port()
+    cam_port, web_port, robot_base = base + 1, base + 2, base + 3
     robots = _robot_names(args.robots)
     print(f"arena demo: {args.robots} robots, {args.mission} missions at {args.power:.0%} power, "
           f"{args.lighting} light, {args.duration:.0f} s; run folder {run_dir}", flush=True)
