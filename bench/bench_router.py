@@ -172,8 +172,10 @@ def _tls_lab(root: Path, endpoint: str, env: dict) -> tuple[list[str], dict, dic
     """The deployment's router and client configs (deploy/zenoh) with certificates for
     127.0.0.1: the router's argv, and the environments of an edge (camera host) and a tracker."""
     pki = root / "pki"
-    subprocess.run([sys.executable, "-m", "arena", "certs", str(pki), "--hosts",
-                    "router=127.0.0.1,camera=127.0.0.1,tracker=127.0.0.1"], check=True, capture_output=True, env=env)
+    made = subprocess.run([sys.executable, "-m", "arena", "certs", str(pki), "--hosts",
+                           "router=127.0.0.1,camera=127.0.0.1,tracker=127.0.0.1"], capture_output=True, text=True, env=env)
+    if made.returncode != 0:
+        raise SystemExit(f"bench_router --tls: arena certs failed: {(made.stderr or made.stdout).strip()[-500:]}")
     passwords = dict(line.split(":", 1) for line in (pki / "users.txt").read_text().split())
     deploy = REPO / "deploy" / "zenoh"
     router = root / "router.json5"
