@@ -217,30 +217,39 @@ def _encode(xs, ys, ps, ts, state, out):
             n += 1
             last_y = y
         started = 1
-        # group a run of same t, y, p with increasing x into VECT_12 words
+        # a run of one t, y and p with increasing x: code each stretch whose events fill adjacent
+        # 12-px words as VECT_BASE_X + VECT_12 words when that takes fewer words than one
+        # EVT_ADDR_X per event (never an empty VECT_12 word to skip a gap)
         p = ps[i]
         j = i + 1
-        while j < ne and ts[j] == t and ys[j] == y and ps[j] == p and xs[j] > xs[j - 1] \
-                and xs[j] - xs[i] < 12 * 32:
+        while j < ne and ts[j] == t and ys[j] == y and ps[j] == p and xs[j] > xs[j - 1]:
             j += 1
-        if j - i >= 3:
-            bx = np.int64(xs[i])
-            out[n] = 0x3000 | (p << 11) | bx
-            n += 1
-            k = i
-            while k < j:
-                m = 0
-                while k < j and xs[k] < bx + 12:
-                    m |= 1 << (xs[k] - bx)
-                    k += 1
-                out[n] = 0x4000 | m
+        k = i
+        while k < j:
+            bx = np.int64(xs[k])
+            last_w = 0
+            kk = k + 1
+            while kk < j:
+                w = (np.int64(xs[kk]) - bx) // 12
+                if w > last_w + 1:
+                    break
+                last_w = w
+                kk += 1
+            if 2 + last_w < kk - k:
+                out[n] = 0x3000 | (p << 11) | bx
                 n += 1
-                bx += 12
-            i = j
-        else:
-            out[n] = 0x2000 | (p << 11) | xs[i]
-            n += 1
-            i += 1
+                for w in range(last_w + 1):
+                    m = 0
+                    while k < kk and xs[k] < bx + 12 * (w + 1):
+                        m |= 1 << (xs[k] - bx - 12 * w)
+                        k += 1
+                    out[n] = 0x4000 | m
+                    n += 1
+            else:
+                out[n] = 0x2000 | (p << 11) | xs[k]
+                n += 1
+                k += 1
+        i = j
     state[0] = last_y
     state[1] = last_th
     state[2] = last_tl
@@ -254,8 +263,8 @@ class Evt3Encoder:
     Emits TIME_HIGH on every change of time bits 23..12; absolute times beyond
     24 bits are kept by emitting one TIME_HIGH 0xFFF, 0x000 pair per wrap (at the
     start and across gaps), which every wrap-extending decoder replays; TIME_LOW on change, EVT_ADDR_Y on change of row, and VECT_BASE_X +
-    VECT_12 for runs of >= 3 events of one row, time and polarity, else
-    EVT_ADDR_X. Times must be non-decreasing and >= 0; x, y < 2048.
+    VECT_12 for stretches of one row, time and polarity whose events fill adjacent 12-px words,
+    where that takes fewer words than one EVT_ADDR_X per event. Times must be non-decreasing and >= 0; x, y < 2048.
     """
 
     def __init__(self) -> None:

@@ -83,6 +83,29 @@ def test_evt3_events_before_first_time_high_are_counted():
     assert out["x"].tolist() == [6] and dec.skipped_words == 1
 
 
+def test_evt3_writer_codes_sparse_rows_without_empty_vector_words():
+    # one row, time and polarity: a dense stretch of 12 px (one VECT_BASE_X + one VECT_12 word
+    # instead of 12 EVT_ADDR_X), then 3 events 150 px apart (3 EVT_ADDR_X, no empty VECT_12
+    # words walking the base across the gaps)
+    x = np.array(list(range(100, 112)) + [300, 450, 600])
+    ev = make_events(x, np.full(x.size, 7), np.ones(x.size, int), np.full(x.size, 5000))
+    words = np.frombuffer(encode_evt3(ev), "<u2")
+    kinds = (words >> 12).tolist()
+    assert kinds.count(0x3) == 1 and kinds.count(0x4) == 1 and kinds.count(0x2) == 3
+    assert len(words) == 3 + 1 + 1 + 3          # TIME_HIGH, TIME_LOW, ADDR_Y; vector; 3 ADDR_X
+    np.testing.assert_array_equal(Evt3Decoder().feed(words.tobytes()), ev)
+
+
+@needs_sample
+def test_evt3_writer_is_no_larger_than_the_camera_on_the_real_sample():
+    raw = SAMPLE.read_bytes()
+    body = raw[parse_raw_header(raw).size:]
+    ev, _, _ = read_events(SAMPLE)
+    data = encode_evt3(ev)
+    assert len(data) <= len(body)               # 575 kB vs the camera's 618 kB (was 1.24 MB)
+    np.testing.assert_array_equal(Evt3Decoder().feed(data), ev)
+
+
 def test_evt2_and_evt21_round_trip_with_odd_chunks_and_wrap():
     ev = _random_events(5000, seed=2, t0=(1 << 34) - 50_000)
     for encode, dec in ((encode_evt2, Evt2Decoder()), (encode_evt21, Evt21Decoder())):
