@@ -57,7 +57,7 @@ with zenoh.open(conf) as s:
 """
 
 
-def run(name, chunks, width, height, put, ours: bool, span_us: int, filters: bool = True):
+def run(name, chunks, width, height, put, ours: bool, span_us: int, filters=None):
     """Process every chunk once, then the last partial window; returns (events, CPU s, bytes sent,
     windows, wall s)."""
     n_ev = 0
@@ -115,13 +115,14 @@ def _time_high_chunks(body: bytes, size: int = 16384) -> list[bytes]:
     return [body[a:b] for a, b in zip(cuts[:-1], cuts[1:])]
 
 
-def _filters(width, height, filters: bool):
-    hot = np.array([[5, 5], [width - 3, height - 7]])  # steady state: the mask was learned before
-    return [HotPixelFilter(width, height, hot_pixels=hot),
-            BackgroundActivityFilter(width, height, 10_000)] if filters else []
+def _filters(width, height, hot):
+    """``hot``: None for no filter, else the hot pixels (k, 2) learnt before (steady state)."""
+    if hot is None:
+        return []
+    return [HotPixelFilter(width, height, hot_pixels=hot), BackgroundActivityFilter(width, height, 10_000)]
 
 
-def run_service(session, path, filters: bool):
+def run_service(session, path, filters=None):
     """The edge service on a RAW file, as fast as possible; returns (events, CPU s, bytes, windows, wall s)."""
     src = open_source(str(path), speed=0)
     try:
@@ -135,11 +136,15 @@ def run_service(session, path, filters: bool):
 
 
 def _dataset(name, ev, width, height, folder: Path):
-    """(name, EVT 3.0 body bytes, RAW file of them, width, height, span µs)."""
+    """(name, EVT 3.0 body bytes, RAW file of them, width, height, span µs, hot pixels learnt over
+    the first 2 s or half the data)."""
     path = folder / f"{name.split()[0]}.raw"
     write_events(path, ev, width, height)
     raw = path.read_bytes()
-    return name, raw[parse_raw_header(raw).size:], path, width, height, int(ev["t"][-1] - ev["t"][0])
+    span = int(ev["t"][-1] - ev["t"][0])
+    learner = HotPixelFilter(width, height, learn_us=min(2_000_000, span // 2))
+    learner(ev)
+    return name, raw[parse_raw_header(raw).size:], path, width, height, span, learner.hot_pixels_
 
 
 def main() -> int:
@@ -186,15 +191,16 @@ def main() -> int:
                   f"load {os.getloadavg()[0]:.1f})")
             print(f"{'data':<18}{'pipeline':<34}{'M ev/s':>8}{'wall M ev/s':>12}{'CPU at real time':>18}"
                   f"{'MB/s out':>10}{'ours/base speed':>16}")
-            for name, body, path, w, h, span_us in datasets:
+            for name, body, path, w, h, span_us, hot in datasets:
+                print(f"{name}: {len(hot)} hot pixel(s) learnt")
                 chunks = [body[i:i + 16384] for i in range(0, len(body), 16384)]
                 base_chunks = _time_high_chunks(body)
                 res = {}
                 variants = {
-                    "ours, no filter": lambda c, f=False: run(name, c, w, h, pub.put, True, span_us, f),
-                    "ours, hot px + denoise": lambda c, f=True: run(name, c, w, h, pub.put, True, span_us, f),
-                    "service run_edge, no filter": lambda c, f=False: run_service(s, path, f),
-                    "service run_edge, hot px + den.": lambda c, f=True: run_service(s, path, f),
+                    "ours, no filter": lambda c: run(name, c, w, h, pub.put, True, span_us),
+                    "ours, hot px + denoise": lambda c: run(name, c, w, h, pub.put, True, span_us, hot),
+                    "service run_edge, no filter": lambda c: run_service(s, path),
+                    "service run_edge, hot px + den.": lambda c: run_service(s, path, hot),
                     "baseline evt3+zstd(array)": lambda c: run(name, c, w, h, pub.put, False, span_us),
                 }
                 for label, fn in variants.items():

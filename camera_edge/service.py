@@ -22,6 +22,7 @@ from arena.events import empty_events
 from arena.keys import events_key
 from arena.messages import EventWindow
 from arena.service import Service
+from camera_edge.filters import HotPixelFilter
 from camera_edge.pipeline import EdgePipeline, Window
 from camera_edge.sources import EventSource, FileSource
 
@@ -136,6 +137,7 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
         pub = WindowPublisher(session, camera, source.width, source.height, svc, codec, queue_size)
         cpu0, wall0 = time.process_time(), time.monotonic()
         last = [cpu0, wall0]
+        hot_reported: set[int] = set()
 
         def tick(s: Service) -> None:
             cpu, wall = time.process_time(), time.monotonic()
@@ -147,6 +149,13 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
             for f in pipeline.filters:
                 s.gauge(f"filter_{f.name}_in", f.n_in)
                 s.gauge(f"filter_{f.name}_out", f.n_out)
+                if isinstance(f, HotPixelFilter) and not f.learning:
+                    hot = f.hot_pixels_
+                    s.gauge("hot_pixels", len(hot))
+                    if id(f) not in hot_reported:
+                        hot_reported.add(id(f))
+                        log.info("edge %s: %d hot pixel(s) masked%s%s", camera, len(hot),
+                                 ": " if len(hot) else "", " ".join(f"{x},{y}" for x, y in hot[:20].tolist()))
             for attr in ("reconnects", "connected"):
                 if hasattr(source, attr):
                     s.gauge(f"source_{attr}", int(getattr(source, attr)))

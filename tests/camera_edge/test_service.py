@@ -13,7 +13,7 @@ from arena.events import make_events
 from arena.formats import write_events
 from arena.messages import Status, decode
 from arena.session import ZenohSettings, open_session
-from camera_edge.filters import RoiFilter
+from camera_edge.filters import HotPixelFilter, RoiFilter
 from camera_edge.pipeline import EdgePipeline
 from camera_edge.service import run_edge
 from camera_edge.sources import FileSource
@@ -64,3 +64,29 @@ def test_file_events_all_delivered_with_filter_counts_and_status(tmp_path):
     assert final.counters["events_in"] == ev.size
     assert final.counters["events_filtered"] == ev.size - out.size
     assert final.counters["events_out"] == out.size and final.counters["bytes_out"] > 0
+
+
+def test_learnt_hot_pixels_are_reported_in_status_and_log(tmp_path, caplog):
+    rng = np.random.default_rng(5)
+    n = 20_000
+    ev = make_events(rng.integers(0, 320, n), rng.integers(0, 240, n), rng.integers(0, 2, n),
+                     np.sort(rng.integers(0, 1_500_000, n)))
+    hot = make_events(np.full(3000, 17), np.full(3000, 9), np.ones(3000), np.linspace(0, 1_499_000, 3000))
+    ev = np.concatenate([ev, hot])
+    ev = ev[np.argsort(ev["t"], kind="stable")]
+    write_events(tmp_path / "h.raw", ev, 320, 240)
+    status = []
+    caplog.set_level("INFO", logger="camera_edge.service")
+    with _session() as s:
+        s.declare_subscriber("arena/status/edge/cam8", lambda smp: status.append(decode(bytes(smp.payload))))
+        f = HotPixelFilter(320, 240, learn_us=500_000)
+        run_edge(s, FileSource(tmp_path / "h.raw", speed=0), EdgePipeline([f], slice_us=10_000), "cam8",
+                 "planes-zstd/1")
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and not status:
+            time.sleep(0.02)
+    final = [st for st in status if isinstance(st, Status)][-1]
+    assert final.gauges["hot_pixels"] == 1
+    assert "1 hot pixel(s) masked: 17,9" in caplog.text
+    after_learning = int((hot["t"] >= 500_000).sum())
+    assert final.gauges["filter_hot_pixel_in"] - final.gauges["filter_hot_pixel_out"] == after_learning

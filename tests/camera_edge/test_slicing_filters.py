@@ -94,6 +94,25 @@ def test_hot_pixels_are_learned_and_saved(tmp_path):
     assert not g.learning and g(hot).size == 0
 
 
+def test_hot_pixels_are_learned_on_a_scene_with_moving_robots(labelled):
+    # the simulator's hot pixels (50 Hz) are its noise pixels with many events; the robots' busy
+    # paths must neither hide them (a threshold on the mean rate of active pixels did: it learnt
+    # none) nor be taken for hot pixels themselves
+    ev, sig = labelled.events, labelled.is_signal
+    w = labelled.width
+    noisy = np.bincount(ev["y"][~sig].astype(np.int64) * w + ev["x"][~sig], minlength=w * labelled.height)
+    truth = sorted((int(k % w), int(k // w)) for k in np.flatnonzero(noisy >= 20))
+    assert len(truth) == 5
+    f = HotPixelFilter(w, labelled.height, learn_us=1_000_000)
+    out = np.concatenate([f(ev[a:a + 50_000]) for a in range(0, ev.size, 50_000)])
+    assert sorted(map(tuple, f.hot_pixels_.tolist())) == truth
+    late = out[out["t"] >= ev["t"][0] + 1_000_000]
+    hot_key = set(y * w + x for x, y in truth)
+    assert not np.isin(late["y"].astype(np.int64) * w + late["x"], list(hot_key)).any()
+    after = ev["t"] >= ev["t"][0] + 1_000_000
+    assert (ev[after & sig].size - np.isin(ev[after & sig], out).sum()) == 0   # no signal event lost
+
+
 def test_roi_from_calibration_keeps_inside_only(labelled):
     f = RoiFilter.from_calibration(json.loads(json.dumps(labelled.calibration)))
     inside = make_events([320], [240], [1], [0])
