@@ -32,22 +32,26 @@ _WRAP = 1 << 24
 _Y, _TH, _TL, _BX, _POL, _OFF, _HAVE_T, _SKIPPED, _TL_FRESH = range(9)
 
 
-_POPCOUNT = np.array([bin(i).count("1") for i in range(4096)], dtype=np.int64)
+def _events_per_word() -> np.ndarray:
+    """How many events each of the 65536 words encodes (EVT_ADDR_X 1, VECT_12/VECT_8 their set
+    bits, others 0): counting a chunk is then one table load per word, ~10x faster than a branch
+    on the type and a popcount."""
+    w = np.arange(1 << 16)
+    typ = w >> 12
+    bits = np.array([bin(i).count("1") for i in range(4096)], dtype=np.uint8)
+    return np.where(typ == 0x2, 1, np.where(typ == 0x4, bits[w & 0xFFF],
+                                            np.where(typ == 0x5, bits[w & 0xFF], 0))).astype(np.uint8)
+
+
+_EVENTS_PER_WORD = _events_per_word()
 
 
 @njit(cache=True, nogil=True)
-def _count_events(words, popcount):
+def _count_events(words, per_word):
     """Number of events the words encode (events before the first TIME_HIGH included)."""
     n = 0
     for i in range(words.size):
-        w = words[i]
-        typ = w >> 12
-        if typ == 0x2:
-            n += 1
-        elif typ == 0x4:
-            n += popcount[w & 0xFFF]
-        elif typ == 0x5:
-            n += popcount[w & 0xFF]
+        n += per_word[words[i]]
     return n
 
 
@@ -67,9 +71,7 @@ def _decode(words, state, xs, ys, ps, ts):
     for i in range(words.size):
         w = np.int64(words[i])
         typ = w >> 12
-        if typ == 0x0:
-            y = w & 0x7FF
-        elif typ == 0x2:
+        if typ == 0x2:                      # the commonest word first
             if have_t:
                 xs[n] = w & 0x7FF
                 ys[n] = y
@@ -78,20 +80,25 @@ def _decode(words, state, xs, ys, ps, ts):
                 n += 1
             else:
                 skipped += 1
+        elif typ == 0x0:
+            y = w & 0x7FF
         elif typ == 0x3:
             bx = w & 0x7FF
             pol = (w >> 11) & 1
         elif typ == 0x4 or typ == 0x5:
             nb = 12 if typ == 0x4 else 8
-            m = w & 0xFFF
+            m = w & (0xFFF if typ == 0x4 else 0xFF)
             if have_t:
-                for b in range(nb):
-                    if (m >> b) & 1:
+                b = 0
+                while m:                        # stops after the highest set bit
+                    if m & 1:
                         xs[n] = bx + b
                         ys[n] = y
                         ps[n] = pol
                         ts[n] = t
                         n += 1
+                    m >>= 1
+                    b += 1
             else:
                 skipped += 1
             bx += nb
@@ -166,7 +173,7 @@ class Evt3Decoder:
 
 def decode_words(words: np.ndarray, state: np.ndarray) -> np.ndarray:
     """Decode a uint16 word array with a decoder ``state`` (updated in place)."""
-    ev = np.empty(_count_events(words, _POPCOUNT), dtype=EVENT_DTYPE)
+    ev = np.empty(_count_events(words, _EVENTS_PER_WORD), dtype=EVENT_DTYPE)
     n = _decode(words, state, ev["x"], ev["y"], ev["p"], ev["t"])  # writes straight into the fields
     return ev if n == ev.size else ev[:n].copy()
 

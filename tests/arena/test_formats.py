@@ -68,6 +68,13 @@ def test_evt3_vectors_expand_in_order_and_y_system_bit_is_ignored():
     assert set(ev["y"].tolist()) == {10} and set(ev["p"].tolist()) == {1}
 
 
+
+def test_evt3_vect8_ignores_mask_bits_above_8_in_count_and_decode():
+    # VECT_8 0x5F01: bits 0 and 8-11 set, only bit 0 is an event; VECT_12 0x4801: bits 0, 11
+    words = np.array([0x8000, 0x6000, 0x0003, 0x3000 | 100, 0x5F01, 0x4801], dtype="<u2")
+    ev = Evt3Decoder().feed(words.tobytes())
+    assert ev["x"].tolist() == [100, 108, 119]
+
 def test_evt3_24bit_wrap_is_extended():
     ev = _random_events(3000, seed=1, t0=(1 << 24) - 20_000)
     ev["t"] += np.arange(ev.size) * 20  # crosses the 2**24 µs wrap
