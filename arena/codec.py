@@ -43,6 +43,11 @@ class CodecError(ValueError):
 
 @njit(cache=True, nogil=True)
 def _put_varint(buf, n, v):
+    if v < 0x4000:      # one or two bytes (nearly every time or row step): no loop to mispredict;
+        big = v >= 0x80  # the second byte is written regardless and overwritten when unused
+        buf[n] = (v & 0x7F) | (0x80 if big else 0)
+        buf[n + 1] = v >> 7
+        return n + 1 + big
     while v >= 0x80:
         buf[n] = (v & 0x7F) | 0x80
         v >>= 7
@@ -96,6 +101,13 @@ def _encode_planes(xs, ys, ps, ts, t_base, ctrl, low, dt_esc, dy_esc):
 
 @njit(cache=True, nogil=True)
 def _get_varint(buf, n):
+    if n + 1 < buf.size:                    # one or two bytes: no loop
+        b0 = np.uint64(buf[n])
+        if b0 < 0x80:
+            return b0, n + 1
+        b1 = np.uint64(buf[n + 1])
+        if b1 < 0x80:
+            return (b0 & np.uint64(0x7F)) | (b1 << np.uint64(7)), n + 2
     v = np.uint64(0)
     shift = np.uint64(0)
     while True:
