@@ -3,7 +3,10 @@
 Threads: the main thread reads the source and runs :class:`~camera_edge.pipeline.EdgePipeline`;
 a publisher thread encodes and puts windows. Between them a bounded queue: for a live source
 a full queue drops the oldest window (counted in ``windows_dropped`` and in every message's
-``dropped``), so the camera is never stalled; for a file the reader waits instead. The Zenoh
+``dropped``), so the camera is never stalled; for a file the reader waits instead. The windows
+of one chunk are handed over together, and the publisher takes up to a quarter of the queue at
+once: one lock and one wake-up per batch, not per window (on one core each hand-over cost ~15 µs
+of thread switching, 6-12 % of a simulator window's cost). The Zenoh
 publisher uses congestion control DROP, and encoding is skipped while nobody subscribes
 (publisher matching status).
 """
@@ -41,6 +44,7 @@ class WindowPublisher:
         self._listener = self._pub.declare_matching_listener(self._on_matching)
         self._q: collections.deque[Window] = collections.deque()
         self._size = queue_size
+        self._batch = max(1, queue_size // 4)
         self._cv = threading.Condition()
         self._closing = False
         self.seq = 0
@@ -57,17 +61,22 @@ class WindowPublisher:
         """Whether some subscriber matches the windows' key."""
         return self._matching
 
-    def submit(self, window: Window, block: bool) -> None:
-        """Queue a window; when full, wait (``block``) or drop the oldest (counted)."""
+    def submit(self, windows: list[Window], block: bool) -> None:
+        """Queue windows (in order); when full, wait (``block``) or drop the oldest (counted).
+        One lock and one wake-up of the publisher for all of them."""
+        if not windows:
+            return
         with self._cv:
-            while block and len(self._q) >= self._size and not self._closing:
-                self._cv.wait(0.1)
-            if len(self._q) >= self._size:
-                self._q.popleft()
-                self.dropped += 1
-                self.seq += 1
-                self.svc.count("windows_dropped")
-            self._q.append(window)
+            for window in windows:
+                while block and len(self._q) >= self._size and not self._closing:
+                    self._cv.notify_all()
+                    self._cv.wait(0.1)
+                if len(self._q) >= self._size:
+                    self._q.popleft()
+                    self.dropped += 1
+                    self.seq += 1
+                    self.svc.count("windows_dropped")
+                self._q.append(window)
             self._cv.notify_all()
 
     def depth(self) -> int:
@@ -80,14 +89,16 @@ class WindowPublisher:
                     self._cv.wait(0.1)
                 if not self._q:
                     return
-                w = self._q.popleft()
-                seq = self.seq
-                self.seq += 1
+                batch = []
+                while self._q and len(batch) < self._batch:
+                    batch.append((self._q.popleft(), self.seq))
+                    self.seq += 1
                 self._cv.notify_all()
-            try:
-                self._publish(w, seq)
-            except Exception as exc:  # noqa: BLE001 - keep publishing the next windows
-                self.svc.error(f"window {seq}: {exc}")
+            for w, seq in batch:
+                try:
+                    self._publish(w, seq)
+                except Exception as exc:  # noqa: BLE001 - keep publishing the next windows
+                    self.svc.error(f"window {seq}: {exc}")
 
     def _publish(self, w: Window, seq: int) -> None:
         self.svc.count("windows")
@@ -169,14 +180,14 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
                     break
                 ev = source.read(timeout=0.05)
                 if ev is None:
-                    for w in pipeline.flush():
-                        svc.count("events_filtered", w.filtered)
-                        pub.submit(w, block=True)
+                    wins = pipeline.flush()
+                    svc.count("events_filtered", sum(w.filtered for w in wins))
+                    pub.submit(wins, block=True)
                     break
                 svc.count("events_in", ev.size)
-                for w in pipeline.push(ev, source.time_us):
-                    svc.count("events_filtered", w.filtered)
-                    pub.submit(w, block=not live)
+                wins = pipeline.push(ev, source.time_us)
+                svc.count("events_filtered", sum(w.filtered for w in wins))
+                pub.submit(wins, block=not live)
         finally:
             pub.close()
             result = {"events_in": pipeline.n_in, "events_kept": pipeline.n_out, "windows": pub.seq,

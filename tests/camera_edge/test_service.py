@@ -90,3 +90,36 @@ def test_learnt_hot_pixels_are_reported_in_status_and_log(tmp_path, caplog):
     assert "1 hot pixel(s) masked: 17,9" in caplog.text
     after_learning = int((hot["t"] >= 500_000).sum())
     assert final.gauges["filter_hot_pixel_in"] - final.gauges["filter_hot_pixel_out"] == after_learning
+
+
+def test_a_slow_publisher_drops_the_oldest_windows_and_keeps_the_newest():
+    # windows of 1 M events take ~25 ms each to encode: submitted at once from a live source
+    # (no waiting), the bounded queue drops the oldest, counts them and numbers the rest in order
+    from arena.service import Service
+    from camera_edge.pipeline import Window
+    from camera_edge.service import WindowPublisher
+
+    rng = np.random.default_rng(2)
+    n = 1_000_000
+    big = make_events(rng.integers(0, 320, n), rng.integers(0, 240, n), rng.integers(0, 2, n),
+                      np.sort(rng.integers(0, 10_000, n)))
+    got = []
+    with _session() as s:
+        s.declare_subscriber("arena/events/slow", lambda smp: got.append(decode(bytes(smp.payload))))
+        time.sleep(0.2)
+        with Service(s, "edge", "slow") as svc:
+            pub = WindowPublisher(s, "slow", 320, 240, svc, "planes-zstd/1", queue_size=8)
+            windows = [Window(k * 10_000, (k + 1) * 10_000, big, 0) for k in range(30)]
+            for k in range(0, 30, 3):
+                pub.submit(windows[k:k + 3], block=False)
+            pub.close(timeout_s=20)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and len(got) < 30 - pub.dropped:
+            time.sleep(0.05)
+    assert 0 < pub.dropped < 30 and len(got) == 30 - pub.dropped
+    seqs = [m.seq for m in got]
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    starts = [m.t_start_us // 10_000 for m in got]
+    assert starts[-8:] == list(range(22, 30))           # the newest queue's worth all published
+    assert [m.seq for m in got] == starts                # seq counts dropped windows too
+    assert got[-1].dropped == pub.dropped
