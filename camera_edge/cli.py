@@ -16,12 +16,12 @@ EDGE_EXAMPLES = """\
 Examples:
   arena edge 'tcp://127.0.0.1:9000?width=640&height=480' --camera cam0   # simulator's camera
   arena edge rec.raw --camera cam0 --speed 1 --loop          # replay a recording in real time
-  arena edge prophesee: --camera cam0 --denoise --hot-pixels learn
+  arena edge prophesee: --camera cam0 --denoise --hot-pixels learn --hot-save hot.txt
   arena edge inivation: --camera cam0 --roi calib.json --roi-margin 10
   arena edge --lab lab.toml --camera cam0                    # source, size, [services.edge] options
   arena edge --list-devices                                  # attached event cameras (USB)
 Options not given as flags come from the lab config's [services.edge] table (slice_ms, codec,
-speed, hot_pixels, hot_learn_s, roi, roi_margin, denoise, queue), else the defaults.
+speed, hot_pixels, hot_learn_s, hot_save, roi, roi_margin, denoise, queue), else the defaults.
 Status: arena status (events/s in, filtered, bytes/s out, encode time, drops)."""
 
 CONVERT_EXAMPLES = """\
@@ -104,6 +104,9 @@ def register_edge(sub) -> None:
     f.add_argument("--hot-pixels", metavar="learn|FILE", default=None,
                    help="drop hot pixels: learned over --hot-learn-s, or listed in FILE (x,y lines or .npy)")
     f.add_argument("--hot-learn-s", type=float, default=None, help="learning time of hot pixels, s (default 2)")
+    f.add_argument("--hot-save", metavar="FILE", default=None,
+                   help="with --hot-pixels learn: write the learnt hot pixels to FILE (x,y lines, or .npy), "
+                        "to pass as --hot-pixels FILE next time")
     f.add_argument("--roi", metavar="lab|CALIB_JSON", default=None,
                    help="keep events inside the arena: the hull of the calibration points (lab: the lab camera's)")
     f.add_argument("--roi-margin", type=int, default=None, help="grow the region of interest by PX (default 10)")
@@ -117,7 +120,7 @@ def register_edge(sub) -> None:
 
 #: options of ``[services.edge]`` in the lab config (flags win) and their built-in defaults
 LAB_OPTIONS = {"slice_ms": 10.0, "codec": DEFAULT_CODEC, "speed": 1.0, "hot_pixels": None, "hot_learn_s": 2.0,
-               "roi": None, "roi_margin": 10, "denoise": None, "queue": 32}
+               "hot_save": None, "roi": None, "roi_margin": 10, "denoise": None, "queue": 32}
 
 
 def _apply_lab_options(args, options: dict) -> str | None:
@@ -140,6 +143,8 @@ def _apply_lab_options(args, options: dict) -> str | None:
         return f"denoise must be a time window in µs > 0 (or true), got {args.denoise!r}"
     if args.codec not in CODECS:
         return f"[services.edge] codec must be one of {', '.join(CODECS)}, got {args.codec!r}"
+    if args.hot_save is not None and (not isinstance(args.hot_save, str) or args.hot_pixels != "learn"):
+        return f"--hot-save (hot_save) takes a file name and needs --hot-pixels learn; got {args.hot_save!r}"
     return None
 
 
@@ -250,7 +255,7 @@ def run_edge_cli(args) -> int:
                 args.codec, slice_us=pipeline.slicer.slice_us)
         with open_session(args, lab=lab, wait_s=None) as session:
             res = run_edge(session, source, pipeline, name, args.codec, queue_size=args.queue,
-                           duration_s=args.duration, stop=stop)
+                           duration_s=args.duration, stop=stop, hot_save=args.hot_save)
     log.info("edge %s done: %s", name, res)
     print(f"arena edge {name}: {res['events_in']} events in, {res['events_kept']} kept, "
           f"{res['windows']} windows, {res['windows_dropped']} dropped in {res['wall_s']:.2f} s "

@@ -17,6 +17,7 @@ import collections
 import logging
 import threading
 import time
+from pathlib import Path
 
 import zenoh
 
@@ -134,8 +135,12 @@ class WindowPublisher:
 
 
 def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline, camera: str, codec: str,
-             queue_size: int = 32, duration_s: float | None = None, stop: threading.Event | None = None) -> dict:
+             queue_size: int = 32, duration_s: float | None = None, stop: threading.Event | None = None,
+             hot_save: str | Path | None = None) -> dict:
     """Run the edge until the source ends, ``duration_s`` passes or ``stop`` is set.
+
+    ``hot_save``: once a hot-pixel filter has learnt its mask, write the hot pixels there (``x,y``
+    lines, or ``.npy``) for ``--hot-pixels FILE`` next time.
 
     Returns the final counters (events in/out, windows, drops, ...)."""
     stop = stop or threading.Event()
@@ -167,6 +172,13 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
                         hot_reported.add(id(f))
                         log.info("edge %s: %d hot pixel(s) masked%s%s", camera, len(hot),
                                  ": " if len(hot) else "", " ".join(f"{x},{y}" for x, y in hot[:20].tolist()))
+                        if hot_save is not None:
+                            try:
+                                f.save(hot_save)
+                                log.info("edge %s: hot pixels saved to %s (use: --hot-pixels %s)", camera,
+                                         hot_save, hot_save)
+                            except OSError as exc:
+                                s.error(f"cannot save the hot pixels to {hot_save}: {exc}")
             for attr in ("reconnects", "connected"):
                 if hasattr(source, attr):
                     s.gauge(f"source_{attr}", int(getattr(source, attr)))

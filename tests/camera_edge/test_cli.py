@@ -67,6 +67,7 @@ def test_convert_csv_takes_the_sensor_size(tmp_path):
     (["x.raw", "--camera", "bad/name"], "camera name"),
     (["tcp://127.0.0.1:1", "--camera", "c", "--loop"], "--loop applies to file"),
     ([], "give a SOURCE"),
+    (["x.raw", "--camera", "c", "--hot-save", "h.txt"], "needs --hot-pixels learn"),
 ])
 def test_edge_errors_are_one_clear_line(args, message):
     r = _run("edge", *args)

@@ -66,7 +66,7 @@ def test_file_events_all_delivered_with_filter_counts_and_status(tmp_path):
     assert final.counters["events_out"] == out.size and final.counters["bytes_out"] > 0
 
 
-def test_learnt_hot_pixels_are_reported_in_status_and_log(tmp_path, caplog):
+def test_learnt_hot_pixels_are_reported_in_status_and_log_and_saved(tmp_path, caplog):
     rng = np.random.default_rng(5)
     n = 20_000
     ev = make_events(rng.integers(0, 320, n), rng.integers(0, 240, n), rng.integers(0, 2, n),
@@ -81,13 +81,15 @@ def test_learnt_hot_pixels_are_reported_in_status_and_log(tmp_path, caplog):
         s.declare_subscriber("arena/status/edge/cam8", lambda smp: status.append(decode(bytes(smp.payload))))
         f = HotPixelFilter(320, 240, learn_us=500_000)
         run_edge(s, FileSource(tmp_path / "h.raw", speed=0), EdgePipeline([f], slice_us=10_000), "cam8",
-                 "planes-zstd/1")
+                 "planes-zstd/1", hot_save=tmp_path / "hot.txt")
         deadline = time.monotonic() + 5
         while time.monotonic() < deadline and not status:
             time.sleep(0.02)
     final = [st for st in status if isinstance(st, Status)][-1]
     assert final.gauges["hot_pixels"] == 1
     assert "1 hot pixel(s) masked: 17,9" in caplog.text
+    assert (tmp_path / "hot.txt").read_text().split() == ["17,9"]          # for --hot-pixels FILE
+    assert HotPixelFilter.load(tmp_path / "hot.txt").tolist() == [[17, 9]]
     after_learning = int((hot["t"] >= 500_000).sum())
     assert final.gauges["filter_hot_pixel_in"] - final.gauges["filter_hot_pixel_out"] == after_learning
 
