@@ -333,8 +333,11 @@ class PropheseeSource(EventSource):
                 "PyPI: build OpenEB (https://github.com/prophesee-ai/openeb) with Python bindings or "
                 "install the Metavision SDK, then check `python -c 'import metavision_core'`. "
                 "Or record with Metavision Studio and replay the .raw file.") from None
-        self._it_obj = EventsIterator(input_path=serial, delta_t=delta_t_us)
-        self.height, self.width = self._it_obj.get_size()
+        try:
+            self._it_obj = EventsIterator(input_path=serial, delta_t=delta_t_us)
+            self.height, self.width = self._it_obj.get_size()
+        except Exception as exc:  # noqa: BLE001 - the SDK raises assorted types, with long texts
+            raise SourceError(f"cannot open Prophesee camera {serial or '(first)'}: {_first_line(exc)}") from None
         self._it = iter(self._it_obj)
         self.name = f"prophesee {serial or '(first)'}"
 
@@ -354,24 +357,42 @@ class PropheseeSource(EventSource):
 
 
 class InivationSource(EventSource):
-    """A live iniVation camera through ``dv-processing`` (``inivation:[NAME]``)."""
+    """A live iniVation camera through ``dv-processing`` 2.x (``inivation:[SERIAL]``).
 
-    def __init__(self, name: str = "") -> None:
+    ``reader``: any dv-processing input with ``getNextEventBatch`` (a camera, or a
+    ``dv.io.MonoCameraRecording``) instead of opening a camera; how the tests check this adapter
+    against the real SDK without a camera.
+    """
+
+    def __init__(self, name: str = "", reader=None) -> None:
         super().__init__()
+        self._cam = reader if reader is not None else self._open_camera(name)
+        res = self._cam.getEventResolution()
+        if res is None:
+            raise SourceError(f"iniVation camera {name or '(first)'} has no event stream")
+        self.width, self.height = int(res[0]), int(res[1])
+        self.name = f"inivation {name or '(first)'}"
+
+    @staticmethod
+    def _open_camera(name: str):
         try:
             import dv_processing as dv  # type: ignore[import-not-found]
         except ImportError:
             raise SourceError("iniVation cameras need dv-processing: pip install 'arena-fleet[inivation]' "
                               "(or pip install dv-processing)") from None
         try:
-            self._cam = dv.io.CameraCapture(name)
-        except RuntimeError as exc:
-            raise SourceError(f"cannot open iniVation camera {name or '(first)'}: {exc}") from None
-        res = self._cam.getEventResolution()
-        if res is None:
-            raise SourceError(f"iniVation camera {name or '(first)'} has no event stream")
-        self.width, self.height = int(res[0]), int(res[1])
-        self.name = f"inivation {name or '(first)'}"
+            found = [d.serialNumber for d in dv.io.camera.discover()]
+        except Exception as exc:  # noqa: BLE001
+            raise SourceError(f"dv-processing cannot list cameras: {_first_line(exc)}") from None
+        if not found:
+            raise SourceError("no iniVation camera found: dv-processing sees none on USB (check the cable, "
+                              "and that your user may open it: iniVation's udev rules)")
+        if name and name not in found:
+            raise SourceError(f"no iniVation camera with serial {name!r}; found: {', '.join(found)}")
+        try:
+            return dv.io.camera.open(name) if name else dv.io.camera.open()
+        except Exception as exc:  # noqa: BLE001 - the SDK raises assorted types, with stack traces
+            raise SourceError(f"cannot open iniVation camera {name or found[0]}: {_first_line(exc)}") from None
 
     def read(self, timeout: float = 0.1) -> np.ndarray | None:
         if not self._cam.isRunning():
@@ -385,6 +406,15 @@ class InivationSource(EventSource):
         ev["x"], ev["y"], ev["p"], ev["t"] = arr["x"], arr["y"], arr["polarity"], arr["timestamp"]
         self._note_time(ev)
         return ev
+
+
+def _first_line(exc: BaseException) -> str:
+    """An SDK exception's first meaningful line (dv-processing appends a C++ stack trace)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    for ln in lines:
+        if ln.startswith("RuntimeError:"):
+            return ln.split(":", 1)[1].strip()
+    return lines[0] if lines else type(exc).__name__
 
 
 def open_source(url_or_path: str, speed: float = 1.0, **opts) -> EventSource:

@@ -1,7 +1,7 @@
 """iniVation AEDAT 4.0 files (DV software): a minimal reader and writer of event streams.
 
-Layout: ``#!AER-DAT4.0\\r\\n``, then a size-prefixed FlatBuffer ``IOHeader``
-(compression: 0 none, 1 LZ4, 2 LZ4 high, 3 ZSTD, 4 ZSTD high; dataTablePosition;
+Layout: ``#!AER-DAT4.0\\r\\n``, then a size-prefixed FlatBuffer ``IOHeader`` (identifier
+``IOHE``; compression: 0 none, 1 LZ4, 2 LZ4 high, 3 ZSTD, 4 ZSTD high; dataTablePosition;
 infoNode: an XML description of the streams), then packets: int32 stream id,
 int32 byte size and the compressed body, a size-prefixed FlatBuffer
 ``EventPacket`` (identifier ``EVTS``) whose ``elements`` vector holds 16-byte
@@ -9,7 +9,8 @@ structs (int64 t µs, int16 x, int16 y, bool on, 3 pad bytes).
 
 Only polarity-event streams (``EVTS``) are read; frames, IMU and trigger packets are
 skipped. The writer writes one event stream and no file data table
-(``dataTablePosition = -1``), which DV and the ``aedat`` package accept.
+(``dataTablePosition = -1``), which iniVation's dv-processing (tested, every compression) and the
+``aedat`` package accept.
 """
 
 from __future__ import annotations
@@ -159,12 +160,17 @@ class Aedat4Reader(EventReader):
 
 
 def _header_buffer(compression: int, info: str) -> bytes:
+    """The size-prefixed ``IOHeader`` FlatBuffer, file identifier ``IOHE`` (which iniVation's
+    readers verify: without it dv-processing refused our files)."""
     s = info.encode()
-    body = bytearray(44 + 4 + len(s) + 1)
-    # [0] size prefix, [4] root offset, [8] vtable (3 fields), [24] table
+    body = bytearray(48 + len(s) + 1)
+    # [0] size prefix, [4] root offset, [8] "IOHE", [12] vtable (3 fields), [24] table:
+    # [24] vtable offset, [28] compression, [32] dataTablePosition, [40] infoNode offset;
+    # [44] the string (length, bytes, NUL)
     struct.pack_into("<I", body, 4, 24 - 4)
-    struct.pack_into("<HHHHH", body, 8, 10, 20, 4, 8, 16)
-    struct.pack_into("<iiqI", body, 24, 24 - 8, compression, -1, 44 - 40)
+    body[8:12] = b"IOHE"
+    struct.pack_into("<HHHHH", body, 12, 10, 20, 4, 8, 16)
+    struct.pack_into("<iiqI", body, 24, 24 - 12, compression, -1, 44 - 40)
     struct.pack_into("<I", body, 44, len(s))
     body[48:48 + len(s)] = s
     body += b"\0" * (-len(body) % 8)

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from arena.events import as_events, make_events
+from arena.events import make_events
 from arena.formats import FormatError, iter_events, read_events, write_events
 from arena.formats.evt2 import Evt2Decoder, Evt21Decoder, encode_evt2, encode_evt21
 from arena.formats.evt3 import Evt3Decoder, encode_evt3
@@ -244,3 +244,37 @@ def test_simulator_raw_across_the_24bit_wrap(tmp_path):
     sim_write(tmp_path / "w.raw", ev, 1280, 720)
     out, _, _ = read_events(tmp_path / "w.raw")
     np.testing.assert_array_equal(out["t"], ev["t"])
+
+
+@pytest.mark.parametrize("compression", ["lz4", "lz4high", "zstd", "zstdhigh", "none"])
+def test_aedat4_files_cross_read_with_inivations_dv_processing(tmp_path, compression):
+    # our writer -> iniVation's reader, and iniVation's writer -> our reader, event for event
+    # (dv-processing refused our files until their IOHeader carried its "IOHE" identifier)
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the 'inivation' extra) is not installed")
+    ev = _random_events(20_000, seed=9, t0=1 << 33, width=346, height=260)
+    write_events(tmp_path / "ours.aedat4", ev, 346, 260, compression=compression)
+    rec = dv.io.MonoCameraRecording(str(tmp_path / "ours.aedat4"))
+    assert tuple(rec.getEventResolution()) == (346, 260)
+    got = []
+    while rec.isRunning():
+        batch = rec.getNextEventBatch()
+        if batch is None:
+            break
+        got.append(batch.numpy())
+    theirs = np.concatenate(got)
+    for ours_f, their_f in (("t", "timestamp"), ("x", "x"), ("y", "y"), ("p", "polarity")):
+        np.testing.assert_array_equal(theirs[their_f].astype(np.int64), ev[ours_f].astype(np.int64))
+
+    cfg = dv.io.MonoCameraWriter.EventOnlyConfig("DVXplorer_test", (346, 260))
+    cfg.compression = {"lz4": dv.CompressionType.LZ4, "lz4high": dv.CompressionType.LZ4_HIGH,
+                       "zstd": dv.CompressionType.ZSTD, "zstdhigh": dv.CompressionType.ZSTD_HIGH,
+                       "none": dv.CompressionType.NONE}[compression]
+    writer = dv.io.MonoCameraWriter(str(tmp_path / "theirs.aedat4"), cfg)
+    store = dv.EventStore()
+    for t, x, y, p in zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist(), ev["p"].tolist()):
+        store.push_back(t, x, y, bool(p))
+    writer.writeEvents(store)
+    del writer                                  # closes the file (writes its data table)
+    back, w, h = read_events(tmp_path / "theirs.aedat4")
+    assert (w, h) == (346, 260)
+    np.testing.assert_array_equal(back, ev)

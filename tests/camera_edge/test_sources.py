@@ -172,3 +172,32 @@ def test_tcp_garbage_is_counted_not_fatal():
         assert src.bytes_in == len(junk) and src.invalid > 0
     th.join(2)
     srv.close()
+
+
+def test_inivation_source_reads_dv_processing_batches_exactly(tmp_path):
+    # the adapter's SDK calls and field names, against the real dv-processing reading a recording
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the 'inivation' extra) is not installed")
+    from camera_edge.sources import InivationSource
+
+    ev = _events(30_000, span_us=300_000)
+    write_events(tmp_path / "r.aedat4", ev, 640, 480)
+    src = InivationSource("rec", reader=dv.io.MonoCameraRecording(str(tmp_path / "r.aedat4")))
+    assert (src.width, src.height) == (640, 480)
+    parts = []
+    while (chunk := src.read(timeout=0.01)) is not None:
+        parts.append(chunk)
+    np.testing.assert_array_equal(np.concatenate(parts), ev)
+    assert src.time_us == int(ev["t"][-1])
+
+
+def test_inivation_without_a_camera_is_one_clear_line():
+    dv = pytest.importorskip("dv_processing", reason="dv-processing (the 'inivation' extra) is not installed")
+    if dv.io.camera.discover():
+        pytest.skip("an iniVation camera is attached")
+    with pytest.raises(SourceError, match="no iniVation camera found"):
+        open_source("inivation:")
+    from camera_edge.sources import _first_line
+
+    with pytest.raises(RuntimeError) as info:            # the SDK's own error, with its C++ trace
+        dv.io.camera.open("NO-SUCH-SERIAL")
+    assert _first_line(info.value) == "Could not find device with given serial number"
