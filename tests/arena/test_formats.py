@@ -300,3 +300,14 @@ def test_evt2_and_dat_files_cross_read_with_expelliarmus(tmp_path):
     back, bw, bh = read_events(tmp_path / "theirs.dat")
     assert (bw, bh) == (1280, 720)
     np.testing.assert_array_equal(back, ev)
+
+
+@needs_sample
+def test_our_evt3_files_decode_identically_in_the_pypi_evt3_decoder(tmp_path):
+    # the writer behind `arena convert x.raw`, vectors included, against an independent decoder
+    evt3 = pytest.importorskip("evt3", reason="evt3 (test extra) is not installed")
+    ev, w, h = read_events(SAMPLE)
+    write_events(tmp_path / "ours.raw", ev, w, h)
+    f = evt3.decode_file(str(tmp_path / "ours.raw"))
+    for ours, theirs in (("x", f.x), ("y", f.y), ("p", f.p), ("t", f.t)):
+        np.testing.assert_array_equal(np.asarray(theirs).astype(np.int64), ev[ours].astype(np.int64))
