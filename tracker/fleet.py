@@ -61,6 +61,10 @@ class FleetConfig:
             window without its cluster otherwise means no motion (an event camera sees every
             turn), so it does not: a robot creeping out of a corner or starting from rest, with
             few events and a jumping centroid, flipped by up to 180 degrees when it did.
+        yaw_settle_updates: a fresh heading (a new track's first, or one just restarted) is
+            restarted after 2 disagreeing motion headings, not ``yaw_reset_updates``, until
+            this many have agreed with it: a starting robot's cluster grows unevenly, so its
+            first apparent motion can point anywhere (it did 90-180 degrees off for 90 ms).
         confirm_hits: detections needed to confirm a track.
         tentative_max_misses: consecutive misses that delete a tentative track.
         stop_tau_s: time constant with which a coasting track brakes to rest, s.
@@ -91,6 +95,7 @@ class FleetConfig:
     spin_radius_m: float = 0.08
     shape_sigma_deg: float = 3.0
     yaw_reset_updates: int = 8
+    yaw_settle_updates: int = 3
     confirm_hits: int = 3
     tentative_max_misses: int = 3
     stop_tau_s: float = 0.05
@@ -110,6 +115,8 @@ class FleetConfig:
             raise ValueError(f"fleet tracker sparse_fraction must be in [0, 1), got {self.sparse_fraction!r}")
         if self.confirm_hits < 1 or self.tentative_max_misses < 1:
             raise ValueError("confirm_hits and tentative_max_misses must be >= 1")
+        if self.yaw_reset_updates < 1 or self.yaw_settle_updates < 0:
+            raise ValueError("yaw_reset_updates must be >= 1 and yaw_settle_updates >= 0")
         if self.fleet_size is not None and self.fleet_size < 1:
             raise ValueError(f"fleet_size must be >= 1 or None, got {self.fleet_size!r}")
 
@@ -172,6 +179,7 @@ class _Track:
         self.yaw_rate = 0.0
         self.py = [1.0, 0.0, 1.0]
         self._disagree = 0
+        self._agreed = 0           # motion headings that agreed since the last heading reset
         # variance of the shape orientation about the motion heading, rad^2 (learnt)
         self._shape_var = math.radians(cfg.shape_sigma_deg) ** 2
         self.state = TENTATIVE
@@ -292,11 +300,13 @@ class _Track:
                 # motion disagrees with the filter: an outlier, or the filter is on a wrong
                 # branch when it persists, or the robot turned while hidden in another's cluster
                 self._disagree += 1
-                if (self._disagree >= self.cfg.yaw_reset_updates or self.hidden >= self.cfg.yaw_reset_updates
+                limit = self.cfg.yaw_reset_updates if self._agreed >= self.cfg.yaw_settle_updates else 2
+                if (self._disagree >= limit or self.hidden >= self.cfg.yaw_reset_updates
                         or self.restored):   # restored from a snapshot: it may have moved meanwhile
                     self._yaw_reset(ob.yaw)
             else:
                 self._disagree = 0
+                self._agreed += 1
                 sy = math.radians(4.0) ** 2
                 if math.isfinite(ob.speed_sigma) and speed > 0:
                     sy += (ob.speed_sigma / speed) ** 2
@@ -329,6 +339,7 @@ class _Track:
         self.yaw_rate = 0.0
         self.py = [math.radians(10) ** 2, 0.0, 1.0]
         self._disagree = 0
+        self._agreed = 0
 
     def _yaw_measure(self, yaw_meas: float, lag: float, var: float) -> None:
         """Kalman update with a yaw measured ``lag`` s before the filter time: H = [1, -lag]."""

@@ -150,6 +150,32 @@ def test_empty_windows_at_rest_do_not_let_a_jittery_start_flip_the_heading(empty
         assert abs(math.remainder(last[0].yaw, 2 * math.pi)) < math.radians(20), (k, last[0].yaw)
 
 
+def test_a_starting_robots_wrong_first_heading_is_corrected_within_a_few_windows():
+    # a robot starting from rest: its cluster grows on the back side first, so the first
+    # apparent motion points backwards (-x) at 0.15 m/s; then it drives along +x. A fresh heading
+    # restarts after 2 disagreeing motions (it took 8: 90 ms reported 180 degrees off)
+    ft = FleetTracker()
+    frames = [[ob(0.5 - 0.0015 * k, 0.5, (k + 1) * DT, -0.15, 0.0)] for k in range(3)]
+    frames += [[ob(0.4955 + 0.004 * k, 0.5, (k + 4) * DT, 0.4, 0.0)] for k in range(12)]
+    outs = run(ft, frames)
+    yaws = [o[0].yaw for o in outs if o]
+    assert abs(math.remainder(yaws[0], 2 * math.pi)) > math.radians(150)     # the wrong first heading
+    off = [abs(math.remainder(y, 2 * math.pi)) > math.radians(60) for y in yaws]
+    assert sum(off) <= 3 and not any(off[3:]), [round(math.degrees(y)) for y in yaws]
+
+
+def test_a_settled_heading_still_ignores_a_few_outlier_motions():
+    # once motion has agreed with the heading a few times, 2-7 windows of backwards apparent
+    # motion (a jumping centroid) do not restart it
+    ft = FleetTracker()
+    run(ft, [[ob(0.5 + 0.004 * k, 0.5, (k + 1) * DT, 0.4, 0.0)] for k in range(20)])
+    x = 0.5 + 0.004 * 19
+    for k in range(5):
+        t = (21 + k) * DT
+        last = ft.update([ob(x - 0.001 * (k + 1), 0.5, t, -0.2, 0.0)], t)
+        assert abs(math.remainder(last[0].yaw, 2 * math.pi)) < math.radians(30), k
+
+
 def test_a_robot_hidden_in_another_ones_cluster_takes_its_new_motion_heading_at_once():
     # hidden for 10 windows in a neighbour's cluster it kept moving and could have turned: its
     # first clear motion afterwards resets the heading at once
