@@ -180,6 +180,7 @@ class _Track:
         self.py = [1.0, 0.0, 1.0]
         self._disagree = 0
         self._agreed = 0           # motion headings that agreed since the last heading reset
+        self._yaw_candidate = math.nan  # a first motion heading waiting for a second to agree
         # variance of the shape orientation about the motion heading, rad^2 (learnt)
         self._shape_var = math.radians(cfg.shape_sigma_deg) ** 2
         self.state = TENTATIVE
@@ -292,10 +293,14 @@ class _Track:
         if math.isfinite(ob.yaw) and speed >= self.cfg.min_speed_mps and not spinning and not sparse:
             pred = self.yaw - self.yaw_rate * lag
             if math.isnan(self.yaw):
-                # the first heading needs a clear motion (a starting robot's cluster grows
-                # unevenly and its apparent motion can point anywhere)
+                # the first heading needs a clear motion, twice in about the same direction (a
+                # starting robot's cluster grows unevenly and its apparent motion can point
+                # anywhere): until then the heading is reported unknown, not wrong
                 if speed >= 2.0 * self.cfg.min_speed_mps:
-                    self._yaw_reset(ob.yaw)
+                    if math.isfinite(self._yaw_candidate) and abs(_wrap(ob.yaw - self._yaw_candidate)) < math.radians(45):
+                        self._yaw_reset(ob.yaw)
+                    else:
+                        self._yaw_candidate = ob.yaw
             elif abs(_wrap(ob.yaw - pred)) > math.radians(45):
                 # motion disagrees with the filter: an outlier, or the filter is on a wrong
                 # branch when it persists, or the robot turned while hidden in another's cluster

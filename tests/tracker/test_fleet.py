@@ -150,18 +150,29 @@ def test_empty_windows_at_rest_do_not_let_a_jittery_start_flip_the_heading(empty
         assert abs(math.remainder(last[0].yaw, 2 * math.pi)) < math.radians(20), (k, last[0].yaw)
 
 
-def test_a_starting_robots_wrong_first_heading_is_corrected_within_a_few_windows():
+def test_a_starting_robots_first_heading_waits_for_two_agreeing_motions():
     # a robot starting from rest: its cluster grows on the back side first, so the first
-    # apparent motion points backwards (-x) at 0.15 m/s; then it drives along +x. A fresh heading
-    # restarts after 2 disagreeing motions (it took 8: 90 ms reported 180 degrees off)
+    # apparent motion points backwards (-x); then it drives along +x. The heading stays unknown
+    # until two motions agree, and is never reported the wrong way (it was, 180 deg for 90 ms)
+    ft = FleetTracker()
+    frames = [[ob(0.5, 0.5, (k + 1) * DT, 0.0, 0.0)] for k in range(3)]      # confirmed, no motion yet
+    frames += [[ob(0.5 - 0.0015, 0.5, 4 * DT, -0.15, 0.0)]]
+    frames += [[ob(0.4985 + 0.004 * k, 0.5, (k + 5) * DT, 0.4, 0.0)] for k in range(12)]
+    yaws = [o[0].yaw for o in run(ft, frames)[3:]]
+    known = [y for y in yaws if math.isfinite(y)]
+    assert len(yaws) - len(known) <= 2 and len(known) >= 10
+    assert all(abs(math.remainder(y, 2 * math.pi)) < math.radians(20) for y in known), yaws
+
+
+def test_a_fresh_wrong_heading_is_corrected_within_a_few_windows():
+    # two agreeing wrong motions (-x) set a fresh heading; the robot then drives along +x: a
+    # fresh heading restarts after 2 disagreeing motions (it took 8: 90 ms reported 180 deg off)
     ft = FleetTracker()
     frames = [[ob(0.5 - 0.0015 * k, 0.5, (k + 1) * DT, -0.15, 0.0)] for k in range(3)]
     frames += [[ob(0.4955 + 0.004 * k, 0.5, (k + 4) * DT, 0.4, 0.0)] for k in range(12)]
-    outs = run(ft, frames)
-    yaws = [o[0].yaw for o in outs if o]
-    assert abs(math.remainder(yaws[0], 2 * math.pi)) > math.radians(150)     # the wrong first heading
-    off = [abs(math.remainder(y, 2 * math.pi)) > math.radians(60) for y in yaws]
-    assert sum(off) <= 3 and not any(off[3:]), [round(math.degrees(y)) for y in yaws]
+    yaws = [o[0].yaw for o in run(ft, frames)[3:] if o]           # from the first +x window on
+    off = [not abs(math.remainder(y, 2 * math.pi)) < math.radians(60) for y in yaws]
+    assert off[0] and sum(off) <= 2 and not any(off[2:]), [round(math.degrees(y)) for y in yaws]
 
 
 def test_a_settled_heading_still_ignores_a_few_outlier_motions():
