@@ -202,6 +202,36 @@ def _key_pass(xs, ys, ps, ts, base, key):
     return t_min, True
 
 
+@njit(cache=True, nogil=True)
+def _key_pass32(xs, ys, ps, ts, base, key):
+    """As :func:`_key_pass` in 32 bits, ``ms << 23 | y << 12 | p << 11 | x``, for a window of
+    under 512 ms with x, y < 2048 (a 10 ms window always is): numpy sorts 32-bit keys about twice
+    as fast. Returns (t_min, False) when a key would not fit."""
+    t_lo = ts[0]
+    for i in range(ts.size):
+        if ts[i] < t_lo:
+            t_lo = ts[i]
+    t_min = base + (t_lo - base) // 1000 * 1000
+    for i in range(xs.size):
+        ms = (ts[i] - t_min) // 1000
+        x = np.int64(xs[i])
+        y = np.int64(ys[i])
+        if x >= 2048 or y >= 2048 or ms >= 512:
+            return t_min, False
+        key[i] = np.uint32((ms << 23) | (y << 12) | ((np.int64(ps[i]) & 1) << 11) | x)
+    return t_min, True
+
+
+@njit(cache=True, nogil=True)
+def _unpack_keys32(key, t_min, xs, ys, ps, ts):
+    for i in range(key.size):
+        k = np.int64(key[i])
+        xs[i] = k & 0x7FF
+        ps[i] = (k >> 11) & 1
+        ys[i] = (k >> 12) & 0x7FF
+        ts[i] = t_min + (k >> 23) * 1000
+
+
 def _lossy_keys(xs, ys, ps, ts, base: int, key: np.ndarray) -> int | None:
     t_min, ok = _key_pass(xs, ys, ps, ts, base, key)
     return int(t_min) if ok else None
@@ -262,13 +292,21 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     if codec == LOSSY_CODEC and n:
         # floor to 1 ms; within one millisecond the order carries no information any more, so
         # sort by (ms, y, p, x), which turns the events into cheap runs
-        key = np.empty(n, np.int64)
-        t_min = _lossy_keys(xs, ys, ps, ts, base, key)
-        if t_min is not None:   # one packed key per event, sorted, unpacked
-            key.sort()
-            xs, ys, ps, ts = (np.empty(n, np.uint16), np.empty(n, np.uint16), np.empty(n, np.uint8),
-                              np.empty(n, np.int64))
-            _unpack_keys(key, t_min, xs, ys, ps, ts)
+        key32 = np.empty(n, np.uint32)
+        t_min, ok = _key_pass32(xs, ys, ps, ts, base, key32)
+        key = None
+        if not ok:
+            key = np.empty(n, np.int64)
+            t_min = _lossy_keys(xs, ys, ps, ts, base, key)
+        if ok or t_min is not None:   # one packed key per event, sorted, unpacked
+            out = (np.empty(n, np.uint16), np.empty(n, np.uint16), np.empty(n, np.uint8), np.empty(n, np.int64))
+            if ok:
+                key32.sort()
+                _unpack_keys32(key32, int(t_min), *out)
+            else:
+                key.sort()
+                _unpack_keys(key, t_min, *out)
+            xs, ys, ps, ts = out
         else:
             t_min = base + (int(ts.min()) - base) // 1000 * 1000
             ms = (ts - t_min) // 1000
