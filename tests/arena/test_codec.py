@@ -53,6 +53,20 @@ def test_lossy_keeps_every_event_with_its_millisecond(ev):
     assert np.all(np.diff(out["t"]) >= 0)
 
 
+@settings(max_examples=50, deadline=None)
+@given(ev=event_arrays(), span_ms=st.sampled_from([10, 511, 513]), tall=st.booleans())
+def test_lossy_windows_short_or_long_tall_or_not_keep_every_event(ev, span_ms, tall):
+    # a window under 512 ms with y < 2048 takes 32-bit sort keys; a longer one, or a taller
+    # sensor, 64-bit keys: the same events either way
+    ev = ev.copy()
+    ev["t"] = np.sort(np.abs(ev["t"]) % (span_ms * 1000))
+    ev["y"] = ev["y"] % 2048 + (2048 if tall else 0)
+    out = decode(LOSSY_CODEC, encode(ev, LOSSY_CODEC, t_ref_us=0), ev.size)
+    expected = ev.copy()
+    expected["t"] = ev["t"] // 1000 * 1000
+    np.testing.assert_array_equal(out, expected[np.lexsort((ev["x"], ev["p"], ev["y"], expected["t"]))])
+
+
 def test_lossy_handles_a_span_too_long_to_pack_and_refuses_wide_sensors():
     # times more than 2^35 ms apart do not fit the packed sort key: sorted the slow way
     ev = make_events([5, 3, 4], [1, 1, 0], [1, 0, 1], [7_000, (1 << 36) * 1000 + 5, 7_999])
