@@ -183,16 +183,22 @@ _FAST = zstandard.ZstdCompressionParameters(window_log=17, hash_log=12, chain_lo
 
 
 @njit(cache=True, nogil=True)
+def _first_ms(ts, base):
+    """The first whole millisecond of ``base``'s grid at or before the earliest of ``ts``, µs."""
+    t_lo = ts[0]
+    for i in range(ts.size):
+        if ts[i] < t_lo:
+            t_lo = ts[i]
+    return base + (t_lo - base) // 1000 * 1000
+
+
+@njit(cache=True, nogil=True)
 def _key_pass(xs, ys, ps, ts, base, key):
     """The lossy codec's sort keys ``ms << 28 | y << 12 | p << 11 | x`` (ms counted from the
     first whole millisecond of ``base``'s grid at or before the earliest event); returns that
     millisecond's time, or (0, False) when a key would not fit (x >= 2048, y >= 65536 or a
     span over 2^35 ms): the caller then sorts without packing."""
-    t_lo = ts[0]
-    for i in range(ts.size):
-        if ts[i] < t_lo:
-            t_lo = ts[i]
-    t_min = base + (t_lo - base) // 1000 * 1000
+    t_min = _first_ms(ts, base)
     for i in range(xs.size):
         ms = (ts[i] - t_min) // 1000
         x = np.int64(xs[i])
@@ -207,11 +213,7 @@ def _key_pass32(xs, ys, ps, ts, base, key):
     """As :func:`_key_pass` in 32 bits, ``ms << 23 | y << 12 | p << 11 | x``, for a window of
     under 512 ms with x, y < 2048 (a 10 ms window always is): numpy sorts 32-bit keys about twice
     as fast. Returns (t_min, False) when a key would not fit."""
-    t_lo = ts[0]
-    for i in range(ts.size):
-        if ts[i] < t_lo:
-            t_lo = ts[i]
-    t_min = base + (t_lo - base) // 1000 * 1000
+    t_min = _first_ms(ts, base)
     for i in range(xs.size):
         ms = (ts[i] - t_min) // 1000
         x = np.int64(xs[i])
