@@ -18,6 +18,7 @@ import time
 from importlib.metadata import entry_points
 
 from arena import __version__
+from arena.keys import ALL_ALIVE, ALL_STATUS, InvalidKey, parse_key
 from arena.messages import EventWindow, Message, MessageError, decode
 from arena.session import SessionError, add_zenoh_arguments, open_session
 
@@ -135,12 +136,15 @@ def _run_status(args) -> int:
 
     try:
         with open_session(args) as session:
-            sub = session.declare_subscriber("arena/status/**", on_status)
-            for reply in session.liveliness().get("arena/alive/**", timeout=2.0):
+            sub = session.declare_subscriber(ALL_STATUS, on_status)
+            for reply in session.liveliness().get(ALL_ALIVE, timeout=2.0):
                 if reply.ok is not None:
-                    parts = str(reply.ok.key_expr).split("/")
-                    if len(parts) == 4:
-                        alive.add((parts[2], parts[3]))
+                    try:
+                        key = parse_key(str(reply.ok.key_expr))
+                    except InvalidKey:   # not a service's token (someone else's key under arena/alive)
+                        continue
+                    if key.kind == "alive":
+                        alive.add((key.parts["role"], key.parts["name"]))
             time.sleep(max(0.0, args.wait))
             sub.undeclare()
     except SessionError as exc:
@@ -275,11 +279,39 @@ def build_parser() -> argparse.ArgumentParser:
     for ep in sorted(entry_points(group="arena.commands"), key=lambda e: e.name):
         try:
             register = ep.load()
-        except (ImportError, AttributeError) as exc:  # package or its register function not there yet
-            log.debug("command %s not available: %s", ep.name, exc)
+        except ImportError as exc:  # a package it needs is missing: keep it listed, say what to install
+            _register_unavailable(sub, ep.name, exc)
             continue
         register(sub)
     return parser
+
+
+#: pip names of the modules whose distribution is named otherwise (for the install hint)
+_PIP_NAMES = {"cv2": "opencv-python-headless", "zenoh": "eclipse-zenoh", "serial": "pyserial", "usb": "pyusb",
+              "sklearn": "scikit-learn", "yaml": "PyYAML", "dv_processing": "dv-processing"}
+
+
+def missing_package_hint(exc: ImportError) -> str:
+    """``needs the Python package X, which is not installed: pip install X`` for an ImportError."""
+    module = (exc.name or str(exc)).split(".")[0]
+    pip_name = _PIP_NAMES.get(module, module)
+    return (f"needs the Python package {pip_name!r} (module {module!r}), which is not installed: "
+            f"pip install {pip_name}   (or reinstall arena: pip install -e . in its checkout)")
+
+
+def _register_unavailable(sub, name: str, exc: ImportError) -> None:
+    """List command ``name`` whose import failed; calling it prints one line and exits 2."""
+    hint = missing_package_hint(exc)
+    module = (exc.name or str(exc)).split(".")[0]
+    # no option prefix: every argument, --help included, reaches the one-line message
+    p = sub.add_parser(name, help=f"(not available: pip install {_PIP_NAMES.get(module, module)})",
+                       add_help=False, prefix_chars="\0", description=f"arena {name} {hint}")
+    p.add_argument("rest", nargs="*", help=argparse.SUPPRESS)
+
+    def unavailable(args) -> int:
+        print(f"arena {name}: {hint}", file=sys.stderr)
+        return 2
+    p.set_defaults(func=unavailable)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,6 +62,27 @@ def test_every_registered_command_loads_and_has_help():
         assert "usage: arena " + name in h.stdout
 
 
+MISSING_MCAP = "import sys; sys.modules['mcap'] = None; from arena.cli import main; sys.exit(main(sys.argv[1:]))"
+
+
+@pytest.mark.parametrize("argv", [["record", "out.mcap"], ["replay", "--help"], ["record"]])
+def test_a_command_whose_package_is_missing_says_what_to_install(argv, tmp_path):
+    """A machine without mcap (a fresh one, before it was declared): record/replay stay listed in
+    --help and, when called, print one line naming the package and the pip command (exit 2)."""
+    helps = subprocess.run([sys.executable, "-c", MISSING_MCAP, "--help"], capture_output=True, text=True,
+                           timeout=60, cwd=tmp_path)
+    listed = [ln for ln in helps.stdout.splitlines() if ln.strip().startswith(("record", "replay"))]
+    assert len(listed) == 2 and all("pip install mcap" in ln for ln in listed), helps.stdout
+    out = subprocess.run([sys.executable, "-c", MISSING_MCAP, *argv], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert out.returncode == 2
+    assert out.stdout == ""
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"arena {argv[0]}: needs the Python package 'mcap'")
+    assert "pip install mcap" in lines[0] and "Traceback" not in out.stderr
+    assert not (tmp_path / "out.mcap").exists()
+
+
 def test_watch_prints_a_message_published_by_another_process(router, service):
     out = run("watch", "arena/telemetry/*", "--count", "2", "--duration", "20", *router_args(router))
     lines = out.stdout.strip().splitlines()
