@@ -12,6 +12,9 @@ import numpy as np
 from arena.events import EVENT_DTYPE
 from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events
 
+#: longest first line read (a header, or the first event): a file without newlines is not read whole
+_MAX_HEADER = 4096
+
 _ALIASES = {"x": "x", "y": "y", "p": "p", "pol": "p", "polarity": "p", "t": "t", "t_us": "t",
             "ts": "t", "timestamp": "t", "time": "t", "time_us": "t"}
 
@@ -25,13 +28,24 @@ class CsvReader(EventReader):
         super().__init__()
         self.path = str(path)
         self._f = open(path, "rb")
-        first = self._f.readline()
+        first = self._f.readline(_MAX_HEADER)   # bounded: a binary file may have no newline at all
         self._order = [0, 1, 2, 3]
         self._line = 1
+        if len(first) >= _MAX_HEADER and not first.endswith(b"\n"):
+            self._f.close()
+            raise FormatError(f"{path}: the first line is longer than {_MAX_HEADER} bytes: not an event CSV "
+                              "(one event per line: x,y,p,t)")
+        if first and any(b < 9 or 13 < b < 32 or b == 127 for b in first.rstrip(b"\r\n")):
+            self._f.close()
+            raise FormatError(f"{path}: binary data, not a text CSV (one event per line: x,y,p,t); "
+                              "for a camera recording use its own extension (.raw, .dat, .aedat4, .npz)")
         if first and any(c.isalpha() for c in first.decode("latin-1")):
             names = [_ALIASES.get(n.strip().lower()) for n in first.decode("latin-1").split(",")]
             if sorted(n for n in names if n) != ["p", "t", "x", "y"] or len(names) != 4:
-                raise FormatError(f"{path}: CSV header {first.strip()!r} must name columns x, y, p, t")
+                self._f.close()
+                shown = first.strip().decode("latin-1")
+                shown = shown if len(shown) <= 80 else shown[:77] + "..."
+                raise FormatError(f"{path}: CSV header {shown!r} must name columns x, y, p, t")
             self._order = [names.index(k) for k in ("x", "y", "p", "t")]
             self._pending = b""
         else:

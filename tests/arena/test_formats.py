@@ -311,3 +311,26 @@ def test_our_evt3_files_decode_identically_in_the_pypi_evt3_decoder(tmp_path):
     f = evt3.decode_file(str(tmp_path / "ours.raw"))
     for ours, theirs in (("x", f.x), ("y", f.y), ("p", f.p), ("t", f.t)):
         np.testing.assert_array_equal(np.asarray(theirs).astype(np.int64), ev[ours].astype(np.int64))
+
+
+@pytest.mark.parametrize("content,message", [
+    (bytes(range(256)) * 40, "binary data, not a text CSV"),        # 10 KB, its first line ~4 KB of bytes
+    (b"a" * 20_000, "first line is longer than 4096 bytes"),          # no newline at all
+    (b"xx,yy,foo," + b"b" * 3000 + b"\n1,2,3,4\n", "must name columns x, y, p, t"),
+])
+def test_a_file_that_is_not_a_csv_is_one_short_error(tmp_path, content, message):
+    """A binary or garbled .csv gives one short line (it printed a 4 KB header back), and a file
+    with no newline is not read whole to find its first line."""
+    import subprocess
+
+    from tests.conftest import arena_cmd
+
+    path = tmp_path / "in.csv"
+    path.write_bytes(content)
+    with pytest.raises(FormatError, match=message) as err:
+        read_events(path)
+    assert len(str(err.value)) < len(str(path)) + 200
+    r = subprocess.run(arena_cmd("convert", str(path), str(tmp_path / "out.npz")), capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and len(r.stderr) < 400
