@@ -42,9 +42,10 @@ Examples:
   arena sim --robots 3 --autopilot cross --fast --duration 10 --record-raw cross.raw --no-webcam
   arena sim --robots 4 --autopilot square --publish-truth -e tcp/127.0.0.1:7447   # truth on Zenoh
 Then point the services at the printed addresses, e.g.
-  arena edge --source tcp://127.0.0.1:9000     (camera)
-  cv2.VideoCapture("http://127.0.0.1:8090/stream.mjpg")   (webcam)
-  serial.serial_for_url("socket://127.0.0.1:9100")         (robot 0)"""
+  arena edge tcp://127.0.0.1:9000 --camera cam0                                  # camera
+  arena groundtruth --video http://127.0.0.1:8090/stream.mjpg --calibration http://127.0.0.1:8090/calibration.json
+  arena bridge run --robot black0=socket://127.0.0.1:9100                        # robot 0
+(or cv2.VideoCapture("http://127.0.0.1:8090/stream.mjpg"), serial.serial_for_url("socket://127.0.0.1:9100"))"""
 
 #: Blocks of simulated time handed to the camera per loop, s.
 BLOCK_S = 0.010

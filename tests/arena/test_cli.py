@@ -62,6 +62,68 @@ def test_every_registered_command_loads_and_has_help():
         assert "usage: arena " + name in h.stdout
 
 
+def _example_commands():
+    """Every ``arena ...`` example line in every command's --help (joined over trailing
+    backslashes, cut at the comment or the column of prose after two spaces)."""
+    import argparse
+    import re
+    import shlex
+
+    from arena.cli import build_parser
+
+    def walk(parser, prefix):
+        yield prefix, parser
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sp in action.choices.items():
+                    yield from walk(sp, prefix + [name])
+
+    top = build_parser()
+    commands = set(next(a for a in top._actions if isinstance(a, argparse._SubParsersAction)).choices)
+    for prefix, parser in walk(top, []):
+        lines = parser.format_help().splitlines()
+        i = 0
+        while i < len(lines):
+            m = re.match(r"^\s+(arena\s.*)$", lines[i])
+            if m:
+                cmd = m.group(1)
+                while cmd.rstrip().endswith("\\") and i + 1 < len(lines):
+                    i += 1
+                    cmd = cmd.rstrip()[:-1] + " " + lines[i].strip()
+                cmd = re.split(r"\s{2,}", cmd)[0]
+                for part in re.split(r"\s*(?:&&|&|\||;)\s*", cmd):
+                    try:
+                        argv = shlex.split(part)[1:]
+                    except ValueError:
+                        continue
+                    if part.startswith("arena ") and argv and argv[0] in commands:
+                        yield " ".join(prefix) or "arena", part, argv
+            i += 1
+
+
+def test_every_example_in_every_help_parses():
+    """The examples a user copies from --help are real commands (arena sim --help recommended
+    `arena edge --source ...`, a flag that does not exist)."""
+    import contextlib
+    import io
+
+    from arena.cli import build_parser
+
+    examples = list(_example_commands())
+    assert len(examples) > 40
+    assert any(argv[:1] == ["edge"] and where == "sim" for where, _, argv in examples)
+    bad = []
+    for where, text, argv in examples:
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+                build_parser().parse_args(argv)
+        except SystemExit as exc:
+            if exc.code:
+                bad.append(f"{where} --help: {text!r}: {err.getvalue().strip().splitlines()[-1]}")
+    assert not bad, "\n".join(bad)
+
+
 MISSING_MCAP = "import sys; sys.modules['mcap'] = None; from arena.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
