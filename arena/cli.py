@@ -91,7 +91,7 @@ def _run_router(args) -> int:
         pass
     except SessionError as exc:
         print(f"arena router: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_code
     return 0
 
 
@@ -149,7 +149,7 @@ def _run_status(args) -> int:
             sub.undeclare()
     except SessionError as exc:
         print(f"arena status: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_code
     with lock:
         keys = sorted(alive | set(statuses))
         rows = []
@@ -256,7 +256,7 @@ def _run_watch(args) -> int:
         pass
     except SessionError as exc:
         print(f"arena watch: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_code
     except Exception as exc:  # an invalid key expression is reported by zenoh as ZError
         print(f"arena watch: {exc}", file=sys.stderr)
         return 2
@@ -330,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0 if exc.args == (f"signal {int(signal.SIGTERM)}",) else 130
     except SessionError as exc:
         print(f"arena {args.command}: {exc}", file=sys.stderr)
-        return 2
+        return exc.exit_code
 
 
 if __name__ == "__main__":  # pragma: no cover

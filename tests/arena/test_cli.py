@@ -169,9 +169,13 @@ def test_status_lists_a_live_service(router, service):
 
 
 def test_status_without_router_says_what_to_check():
+    """No router answering is a runtime failure (exit 1); wrong settings are a usage error (2)."""
     out = run("status", "-m", "client", "-e", "tcp/127.0.0.1:9", "--wait", "0")
-    assert out.returncode == 2
+    assert out.returncode == 1
     assert "Is a router running there" in out.stderr and "Traceback" not in out.stderr
+    assert "! ." not in out.stderr
+    bad = run("status", "--zenoh-config", "/nonexistent/zenoh.json5", "--wait", "0")
+    assert bad.returncode == 2 and "zenoh.json5" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def router_args(router):
