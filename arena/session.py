@@ -44,7 +44,14 @@ MODES = ("peer", "client", "router")
 
 
 class SessionError(RuntimeError):
-    """Zenoh could not be opened with the given settings; the message says what to check."""
+    """Zenoh could not be opened with the given settings; the message says what to check.
+
+    ``exit_code`` is what a command exits with: 2 for settings that are wrong (a usage or input
+    error: a bad mode, config file or endpoint), 1 for a runtime failure (no router answered)."""
+
+    def __init__(self, message: str, exit_code: int = 2) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 @dataclass
@@ -220,9 +227,9 @@ def open_session(args: argparse.Namespace | ZenohSettings | None = None, lab: La
         except Exception as exc:  # zenoh.ZError
             if deadline is not None and time.monotonic() >= deadline:
                 raise SessionError(
-                    f"cannot open Zenoh ({settings.describe()}): {str(exc).split(' at ')[0]}. "
-                    "Is a router running there (`arena router`)? Check --connect/--mode or the lab config."
-                ) from None
+                    f"cannot open Zenoh ({settings.describe()}): {str(exc).split(' at ')[0].rstrip(' !.')}. "
+                    "Is a router running there (`arena router`)? Check --connect/--mode or the lab config.",
+                    exit_code=1) from None
             log.warning("waiting for Zenoh (%s): %s", settings.describe(), str(exc).split(" at ")[0])
             time.sleep(delay)
             delay = min(delay * 2, 2.0)
