@@ -119,7 +119,7 @@ def _robots_from_args(args) -> tuple[list, dict]:
         try:
             lab = load_lab_config(args.lab)
         except (ConfigError, OSError) as e:
-            raise SystemExit(f"arena sim: cannot read lab config {args.lab}: {e}")
+            raise _usage(f"arena sim: cannot read lab config {args.lab}: {e}")
         if lab.cameras:
             cam = lab.cameras[0]
             opts["width"], opts["height"] = args.width or cam.width, args.height or cam.height
@@ -157,25 +157,31 @@ def layout_poses(layout: str, n: int, arena_m: float) -> list[tuple[float, float
     return [pick(i).start_pose() for i in range(n)]
 
 
+def _usage(message: str) -> SystemExit:
+    """A usage or input error: its one line on stderr, exit 2 (a runtime failure exits 1)."""
+    print(message, file=sys.stderr)
+    return SystemExit(2)
+
+
 def _check_args(args) -> None:
     if args.robots is not None and not 0 <= args.robots <= 50:
-        raise SystemExit(f"arena sim: --robots must be in 0..50, got {args.robots}")
+        raise _usage(f"arena sim: --robots must be in 0..50, got {args.robots}")
     if not 0.05 <= args.power <= 1.0:
-        raise SystemExit(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
+        raise _usage(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
     if args.duration < 0:
-        raise SystemExit(f"arena sim: --duration must be >= 0, got {args.duration}")
+        raise _usage(f"arena sim: --duration must be >= 0, got {args.duration}")
     if not 1 <= args.telemetry_hz <= 1000:
-        raise SystemExit(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
+        raise _usage(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
     for name in ("camera_port", "webcam_port", "robot_base_port"):
         v = getattr(args, name)
         if v is not None and not 0 <= v <= 65535:
-            raise SystemExit(f"arena sim: --{name.replace('_', '-')} must be a TCP port 0..65535, got {v}")
+            raise _usage(f"arena sim: --{name.replace('_', '-')} must be a TCP port 0..65535, got {v}")
     for name in ("width", "height"):
         v = getattr(args, name)
         if v is not None and not 16 <= v <= 4096:
-            raise SystemExit(f"arena sim: --{name} must be 16..4096 px, got {v}")
+            raise _usage(f"arena sim: --{name} must be 16..4096 px, got {v}")
     if args.flicker < 0:
-        raise SystemExit(f"arena sim: --flicker must be >= 0 Hz, got {args.flicker}")
+        raise _usage(f"arena sim: --flicker must be >= 0 Hz, got {args.flicker}")
 
 
 def run(args) -> int:
@@ -299,7 +305,8 @@ def _start_truth_publisher(stack: ExitStack, args, specs, camera) -> _TruthPubli
     try:
         session = stack.enter_context(open_session(args, wait_s=None))
     except SessionError as e:
-        raise SystemExit(f"arena sim: cannot open the Zenoh session for --publish-truth: {e}")
+        print(f"arena sim: cannot open the Zenoh session for --publish-truth: {e}", file=sys.stderr)
+        raise SystemExit(e.exit_code) from None
     svc = stack.enter_context(Service(session, "sim", "sim"))
     svc.set_state("running")
     print("truth    arena/sim/truth/<robot> (Zenoh)", flush=True)
