@@ -13,7 +13,7 @@ import math
 import sys
 import time
 
-from arena.session import SessionError, add_zenoh_arguments, open_session
+from arena.session import SessionError, add_zenoh_arguments, open_session, resolve_settings
 
 log = logging.getLogger("robot_bridge")
 
@@ -30,6 +30,9 @@ Examples:
   arena bridge stop all
   arena bridge estop zumo1 && arena bridge clear zumo1
   arena bridge led zumo1 255 0 0
+
+Exit codes: 0 done (or stopped by Ctrl-C/SIGTERM), 1 runtime failure (a refused command, no
+bridge answered, a robot that could not be reached with --require-all), 2 usage or input error.
 """
 
 
@@ -50,7 +53,9 @@ def register(subparsers) -> None:
 
     r = sub.add_parser("run", help="run the bridge service", formatter_class=_formatter, epilog=EXAMPLES,
                        description="Connect to every robot and serve missions and commands until Ctrl-C.\n"
-                                   "Motors are stopped on exit, Ctrl-C, SIGTERM, link or router loss.")
+                                   "Motors are stopped on exit, Ctrl-C, SIGTERM, link or router loss (client\n"
+                                   "mode, the default). A robot whose link cannot be opened is an error in\n"
+                                   "arena status and is retried with backoff (fatal with --require-all).")
     r.add_argument("--robot", metavar="NAME=URL", action="append", default=[],
                    help="robot and pyserial URL, repeatable (/dev/rfcomm0, /dev/ttyACM0, socket://HOST:PORT)")
     r.add_argument("--name", default=None, help="service name in arena status (default: bridge-<first robot>)")
@@ -63,6 +68,8 @@ def register(subparsers) -> None:
                    help="extra age of track poses (the tracker's own lag), s (default 0)")
     r.add_argument("--baud", type=int, default=None, help="serial baud rate (default 57600, the firmware's)")
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds (tests, demos)")
+    r.add_argument("--require-all", action="store_true",
+                   help="exit (code 1) if a robot's link cannot be opened at start-up, instead of retrying")
     add_zenoh_arguments(r)
     r.set_defaults(func=run_service)
 
@@ -85,6 +92,9 @@ def register(subparsers) -> None:
     g = m.add_mutually_exclusive_group()
     g.add_argument("--power", type=float, help="motor power in percent (the paper: 50 or 100)")
     g.add_argument("--speed", type=float, help="tread speed, m/s")
+    m.add_argument("--start-pose", metavar="X,Y,YAW_DEG", default=None,
+                   help="where the robot stands (arena m, degrees): lets --control closed start before "
+                        "the camera has seen the robot move")
     m.add_argument("--control", choices=("paper", "closed"), default="paper",
                    help="paper: encoder PID only; closed: follow the robot's own track (default paper)")
     m.add_argument("--start-in", type=float, default=None, metavar="S",
@@ -108,13 +118,18 @@ def register(subparsers) -> None:
 def _client_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the bridge's reply")
     p.add_argument("--operator", default=None, help="who sends the command (recorded in the mission log)")
-    p.add_argument("--start-pose", metavar="X,Y,YAW_DEG", default=None,
-                   help="where the robot stands (arena m, degrees): lets --control closed start before "
-                        "the camera has seen the robot move")
     add_zenoh_arguments(p)
 
 
 # --------------------------------------------------------------------------------------------
+class UsageError(ValueError):
+    """Bad flags or config: ``arena bridge run`` prints it and exits with code 2."""
+
+
+#: how long --require-all waits for every robot's first attempt to open its link, s
+REQUIRE_WAIT_S = 10.0
+
+
 def _robots_from(args, lab) -> list:
     from .odometry import WheelGeometry
     from .service import RobotSetup, parse_robot_flag
@@ -125,7 +140,7 @@ def _robots_from(args, lab) -> list:
         try:
             name, url = parse_robot_flag(value)
         except ValueError as exc:
-            raise SystemExit(f"arena bridge run: {exc}") from None
+            raise UsageError(str(exc)) from None
         flags[name] = url
     if lab is not None:
         for rc in lab.robots:
@@ -139,17 +154,20 @@ def _robots_from(args, lab) -> list:
 
 
 def run_service(args) -> int:
-    from arena.service import Service, stop_on_signals
+    from arena.config import ConfigError
+    from arena.service import Service, stop_on_signals, wait_until_stopped
     from arena.session import load_lab_from_args
 
     from .service import Bridge, BridgeOptions
 
     try:
         lab = load_lab_from_args(args)
-    except Exception as exc:  # ConfigError
+        robots = _robots_from(args, lab)
+        # the same settings the session is opened with (flags > ARENA_ZENOH_* > lab > defaults)
+        settings = resolve_settings(args, lab)
+    except (ConfigError, UsageError, SessionError) as exc:
         print(f"arena bridge run: {exc}", file=sys.stderr)
         return 2
-    robots = _robots_from(args, lab)
     if not robots:
         print("arena bridge run: no robots: give --robot NAME=URL or a --lab config whose robots have serial_url",
               file=sys.stderr)
@@ -166,16 +184,38 @@ def run_service(args) -> int:
     o.track_delay_s = args.track_delay if args.track_delay is not None else float(
         opts.get("track_delay_s", o.track_delay_s))
     name = args.name or f"bridge-{robots[0].name}"
+    # the router watchdog: in client mode every message goes through the router, so losing it
+    # means no e-stop can reach the robots any more
+    watch = settings.mode == "client"
     stop = stop_on_signals()
     try:
-        with open_session(args, lab=lab, wait_s=None) as session, Service(session, "bridge", name) as svc:
-            watch = (getattr(args, "mode", None) or (lab.zenoh.mode if lab else "peer")) == "client"
-            with Bridge(session, robots, o, service=svc, watch_router=watch) as bridge:
-                svc.set_state("running")
-                print(f"arena bridge {name}: {', '.join(f'{r.name}={r.url}' for r in robots)}; "
-                      f"logs in {o.log_dir}; commands on arena/cmd/<robot>/<verb>", flush=True)
-                stop.wait(args.duration)
-                del bridge
+        with open_session(settings, wait_s=None) as session:
+            svc = Service(session, "bridge", name)
+            try:
+                bridge = Bridge(session, robots, o, service=svc, watch_router=watch)
+            except ValueError as exc:   # a robot name used twice or reserved
+                print(f"arena bridge run: {exc}", file=sys.stderr)
+                return 2
+            bridge.start()
+            try:
+                if getattr(args, "require_all", False):
+                    # before the liveliness token: a launcher waiting for it never sees this bridge ready
+                    failed = _unreachable(bridge, REQUIRE_WAIT_S)
+                    if failed:
+                        for line in failed:
+                            print(f"arena bridge run: {line} (--require-all)", file=sys.stderr)
+                        return 1
+                with svc:
+                    try:
+                        print(f"arena bridge {name}: {', '.join(f'{r.name}={r.url}' for r in robots)}; "
+                              f"logs in {o.log_dir}; commands on arena/cmd/<robot>/<verb>; "
+                              f"router watchdog {'on' if watch else 'off'} ({settings.mode} mode)", flush=True)
+                        # in short ticks: an untimed wait can sleep through SIGTERM
+                        wait_until_stopped(stop, getattr(args, "duration", None))
+                    finally:
+                        bridge.close()   # every robot stopped before the last status and the token go
+            finally:
+                bridge.close()
     except KeyboardInterrupt:
         pass
     except SessionError as exc:
@@ -184,11 +224,26 @@ def run_service(args) -> int:
     return 0
 
 
+def _unreachable(bridge, timeout_s: float) -> list[str]:
+    """One line per robot whose link did not come up on its first attempt (within ``timeout_s``)."""
+    deadline = time.monotonic() + timeout_s
+    out = []
+    for name, h in bridge.handles.items():
+        done = h.link.wait_attempted(max(0.0, deadline - time.monotonic()))
+        if h.link.connected:
+            continue
+        reason = h.link.last_error if done else f"not connected after {timeout_s:.0f} s ({h.link.last_error})"
+        out.append(f"robot {name}: link to {h.link.url} cannot be opened: {reason}")
+    return out
+
+
 def _send(args, verb: str, payload: bytes) -> int:
     import zenoh
 
+    from arena.config import ConfigError
     from arena.keys import InvalidKey, cmd_key
     from arena.messages import CommandReply, MessageError
+    from arena.session import load_lab_from_args
 
     from .service import fmt_reply
 
@@ -197,10 +252,16 @@ def _send(args, verb: str, payload: bytes) -> int:
     except InvalidKey as exc:
         print(f"arena bridge {verb}: {exc}", file=sys.stderr)
         return 2
+    try:   # input errors (exit 2) apart from an unreachable Zenoh (exit 1)
+        settings = resolve_settings(args, load_lab_from_args(args))
+        settings.to_zenoh_config()
+    except (ConfigError, SessionError) as exc:
+        print(f"arena bridge {verb}: {exc}", file=sys.stderr)
+        return 2
     ok = True
     n = 0
     try:
-        with open_session(args) as session:
+        with open_session(settings) as session:
             # no consolidation: 'all' gets one reply per robot on the same key
             for r in session.get(key, payload=payload, timeout=args.timeout,
                                  consolidation=zenoh.ConsolidationMode.NONE):
@@ -219,7 +280,7 @@ def _send(args, verb: str, payload: bytes) -> int:
                 print(fmt_reply(reply), flush=True)
     except SessionError as exc:
         print(f"arena bridge {verb}: {exc}", file=sys.stderr)
-        return 2
+        return 1
     if n == 0:
         print(f"arena bridge {verb}: no bridge answered for robot {args.robot!r} within {args.timeout} s "
               "(unknown robot, or no bridge running on this Zenoh)", file=sys.stderr)

@@ -9,7 +9,9 @@ and hands each one to ``on_frame(frame, host_time_ns, gap)`` where ``gap`` is th
 of robot packets missing before it (from the 16-bit sequence numbers). It sends a PING
 every ``ping_interval_s`` and keeps the round-trip time. When the port fails or stays
 silent for ``silence_s`` it closes it and reconnects with exponential backoff; while
-down, :meth:`RobotLink.send` raises :class:`LinkDown` with the reason.
+down, :meth:`RobotLink.send` raises :class:`LinkDown` with the reason. A port that cannot be
+opened (a missing device, a refused socket, no HELLO_REPLY) is retried with the same backoff;
+each failed attempt is counted (``stats.open_failures``) and reported to ``on_open_error``.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ class LinkStats:
 
     connects: int = 0
     disconnects: int = 0
+    open_failures: int = 0       # attempts to open the port (and handshake) that failed
     frames: int = 0              # good frames received
     telemetry: int = 0
     missing: int = 0             # robot packets never received (sequence gaps)
@@ -72,7 +75,8 @@ class LinkStats:
         return self.frames / total if total else 1.0
 
     def as_dict(self) -> dict:
-        return {"connects": self.connects, "disconnects": self.disconnects, "frames": self.frames,
+        return {"connects": self.connects, "disconnects": self.disconnects,
+                "open_failures": self.open_failures, "frames": self.frames,
                 "telemetry": self.telemetry, "missing": self.missing, "crc_errors": self.crc_errors,
                 "framing_errors": self.framing_errors, "other_rejected": self.other_rejected,
                 "sent": self.sent, "rtt_ms": self.rtt_ms, "quality": round(self.quality, 5)}
@@ -90,6 +94,8 @@ class RobotLink:
         baudrate: UART rate (the firmware's 57600; ignored by ``socket://``).
         on_frame: called from the reader thread for each good frame.
         on_state: called with (connected: bool, reason: str) on every change.
+        on_open_error: called from the reader thread with (reason, retry_in_s) after every
+            attempt to open the port that failed (the link logs it as well).
         hello_timeout_s: how long to wait for HELLO_REPLY after opening.
         silence_s: no byte for this long means the link is dead (telemetry is 50-100 Hz).
         backoff_s: (first, max) delay between reconnection attempts, s.
@@ -98,6 +104,7 @@ class RobotLink:
     def __init__(self, url: str, name: str = "robot", baudrate: int = 57600,
                  on_frame: FrameCallback | None = None,
                  on_state: Callable[[bool, str], None] | None = None,
+                 on_open_error: Callable[[str, float], None] | None = None,
                  hello_timeout_s: float = 1.0, silence_s: float = 0.5, ping_interval_s: float = 1.0,
                  backoff_s: tuple[float, float] = (0.05, 2.0)):
         self.url = url
@@ -105,6 +112,7 @@ class RobotLink:
         self.baudrate = baudrate
         self.on_frame = on_frame
         self.on_state = on_state
+        self.on_open_error = on_open_error
         self.hello_timeout_s = hello_timeout_s
         self.silence_s = silence_s
         self.ping_interval_s = ping_interval_s
@@ -117,6 +125,7 @@ class RobotLink:
         self._tx_lock = threading.Lock()
         self._stop = threading.Event()
         self._connected = threading.Event()
+        self._attempted = threading.Event()   # the first attempt to open the port is over
         self._thread: threading.Thread | None = None
         self._seq = 0
         self._last_seq: int | None = None
@@ -134,6 +143,11 @@ class RobotLink:
     def wait_connected(self, timeout: float) -> bool:
         """Block until connected (True) or ``timeout`` s passed (False)."""
         return self._connected.wait(timeout)
+
+    def wait_attempted(self, timeout: float) -> bool:
+        """Block until the first attempt to open the port is over, whatever its outcome (True),
+        or ``timeout`` s passed (False). Then :attr:`connected` or :attr:`last_error` tell which."""
+        return self._attempted.wait(timeout)
 
     def start(self) -> "RobotLink":
         if self._thread is None:
@@ -308,9 +322,18 @@ class RobotLink:
         reported = None
         while not self._stop.is_set():
             if not self._open():
+                if self._stop.is_set():
+                    break
+                self.stats.open_failures += 1
+                self._attempted.set()
                 level = logging.INFO if self.last_error == reported else logging.WARNING
                 reported = self.last_error
                 log.log(level, "robot %s: %s; retry in %.2f s", self.name, self.last_error, delay)
+                if self.on_open_error:
+                    try:
+                        self.on_open_error(self.last_error, delay)
+                    except Exception:  # noqa: BLE001 - a consumer bug must not kill the link
+                        log.exception("robot %s: open-error handler failed", self.name)
                 self._stop.wait(delay)
                 delay = min(delay * 2.0, self.backoff_s[1])
                 continue
@@ -320,6 +343,7 @@ class RobotLink:
             self.last_error = ""
             self.last_rx_ns = time.time_ns()
             self._connected.set()
+            self._attempted.set()
             log.info("robot %s connected on %s (firmware %d, %d Hz)", self.name, self.url,
                      self.hello.firmware_version, self.hello.telemetry_hz)
             if self.on_state:

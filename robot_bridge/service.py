@@ -5,17 +5,22 @@ For every robot (from the lab config or ``--robot NAME=URL``) the bridge keeps a
 ``arena/telemetry/<robot>``, logs it (``robot_bridge.logs``), and runs missions with
 ``robot_bridge.control`` on every sample (50-100 Hz), sending SET_MOTORS back.
 
-Commands are Zenoh queryables ``arena/cmd/<robot>/{mission,stop,estop,clear,led}`` (and
-``arena/cmd/all/...``) answered with :class:`arena.messages.CommandReply`: ``ok`` or an
-error starting with one of ``unknown robot``, ``busy``, ``bad parameter``, ``link down``,
-``e-stop latched``, ``low battery``. Robots no bridge serves get no reply at all (several
-bridges may share a Zenoh network), which the CLI reports as such. Tracks from ``arena/robots/*`` feed closed-loop control and the
-geofence.
+Commands are queries on ``arena/cmd/<robot>/{mission,stop,estop,clear,led}`` (and
+``arena/cmd/all/...``; one queryable on ``arena/cmd/**``) answered with
+:class:`arena.messages.CommandReply`: ``ok`` or an error starting with one of ``unknown robot``,
+``busy``, ``bad parameter``, ``link down``, ``e-stop latched``, ``low battery``. Robots no bridge
+serves get no reply at all (several bridges may share a Zenoh network), which the CLI reports as
+such. A query whose key is not a command key (wildcards such as ``arena/cmd/**`` or
+``arena/cmd/*/stop``, too few or too many parts, an unknown verb) gets an error reply
+(``reply.err``) saying what a command key looks like. Tracks from ``arena/robots/*`` feed
+closed-loop control and the geofence.
 
 Safety: motors are stopped on exit (also Ctrl-C/SIGTERM), when a mission raises, when a
 robot's link drops (and the robot's own 300 ms watchdog stops it anyway), when the Zenoh
-router is lost (client mode), on e-stop (latched until ``clear``), when a track leaves the
-geofence, and when the battery is low.
+router is lost (client mode: every robot gets STOP within ~50 ms of Zenoh seeing the loss),
+on e-stop (latched until ``clear``), when a track leaves the geofence, and when the battery
+is low. A robot whose link cannot be opened is an error (counted in the status, retried with
+backoff).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import zenoh
 
-from arena.keys import ALL_ROBOTS, COMMAND_VERBS, telemetry_key, validate_name
+from arena.keys import ALL_ROBOTS, COMMAND_VERBS, ROOT, InvalidKey, parse_key, telemetry_key, validate_name
 from arena.messages import Command, CommandReply, MessageError, MissionCommand, Telemetry, Track, decode
 
 from . import protocol as P
@@ -91,7 +96,8 @@ class RobotHandle:
     Thread-safe: link frames, tracks and commands arrive on different threads.
     """
 
-    def __init__(self, setup: RobotSetup, options: BridgeOptions, publish=None, on_error=None):
+    def __init__(self, setup: RobotSetup, options: BridgeOptions, publish=None, on_error=None,
+                 on_open_error=None):
         self.name = setup.name
         self.geometry = setup.geometry
         self.opt = options
@@ -99,7 +105,8 @@ class RobotHandle:
         self.on_error = on_error or (lambda msg: log.warning("%s", msg))
         self.lock = threading.RLock()
         self.link = RobotLink(setup.url, setup.name, baudrate=options.baudrate,
-                              on_frame=self._on_frame, on_state=self._on_link_state)
+                              on_frame=self._on_frame, on_state=self._on_link_state,
+                              on_open_error=on_open_error)
         self.odometry = Odometry(self.geometry)
         self.estimator = PoseEstimator(stale_s=options.track_stale_s, delay_s=options.track_delay_s)
         self.runner: MissionRunner | None = None
@@ -119,6 +126,7 @@ class RobotHandle:
         self.published = 0
         self.battery_mv = 0
         self.halting = False   # the bridge is closing: STOP was sent, no more motor commands
+        self.holding = False   # STOP was sent; no motor commands until stop() ends the mission
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -210,8 +218,17 @@ class RobotHandle:
         with self.lock:
             had = self.mission_id
             self._end_mission(reason)
+            self.holding = False
         self._stop_motors()
         return {"stopped_mission": had}
+
+    def hold(self) -> bool:
+        """Send STOP now and command no motors until :meth:`stop` ends the mission: the first
+        step of stopping several robots at once (ending a mission writes its log, which takes
+        long enough that the last robot of a fleet stopped one by one kept driving)."""
+        with self.lock:    # no control step is half-way: the next one sees the flag
+            self.holding = True
+        return self._stop_motors()
 
     def emergency_stop(self) -> dict:
         """Stop now and latch: no mission starts until :meth:`clear`.
@@ -372,7 +389,7 @@ class RobotHandle:
             self._end_mission("finished")
             self._stop_motors()
             return "done"
-        if self.halting:
+        if self.halting or self.holding:
             return out.phase
         try:
             self.link.set_motors(out.left, out.right)
@@ -397,26 +414,35 @@ class Bridge:
         options: settings.
         service: an ``arena.service.Service`` for counters (optional).
         watch_router: stop every robot when the session has no router (client mode).
+        router_poll_s: how often the router is checked, s (a lost router stops the robots
+            within this plus the time Zenoh takes to see the connection close).
     """
 
+    #: the one queryable of the command keys (the key is parsed in :meth:`_on_query`)
+    COMMANDS = f"{ROOT}/cmd/**"
+
     def __init__(self, session: zenoh.Session, robots: list[RobotSetup], options: BridgeOptions | None = None,
-                 service=None, watch_router: bool = False):
+                 service=None, watch_router: bool = False, router_poll_s: float = 0.05):
         if not robots:
             raise ValueError("no robots to bridge: give --robot NAME=URL or a lab config with serial_url")
         self.session = session
         self.opt = options or BridgeOptions()
         self.svc = service
         self.watch_router = watch_router
+        self.router_poll_s = router_poll_s
+        self.router_lost = False
         self.handles: dict[str, RobotHandle] = {}
         self._pubs = {}
         for r in robots:
             validate_name(r.name, "robot name")
             if r.name in self.handles or r.name == "all":
                 raise ValueError(f"robot name {r.name!r} used twice or reserved")
-            self.handles[r.name] = RobotHandle(r, self.opt, publish=self._publish, on_error=self._error)
+            self.handles[r.name] = RobotHandle(r, self.opt, publish=self._publish, on_error=self._error,
+                                               on_open_error=self._open_error_handler(r))
             self._pubs[r.name] = session.declare_publisher(telemetry_key(r.name))
         self._decls = []
         self._stop = threading.Event()
+        self._closed = False
         self._monitor: threading.Thread | None = None
 
     def _error(self, msg: str) -> None:
@@ -424,6 +450,23 @@ class Bridge:
             self.svc.error(msg)
         else:
             log.warning("%s", msg)
+
+    def _open_error_handler(self, robot: RobotSetup):
+        """Count every failed attempt to open ``robot``'s link; an error (status ``errors`` and
+        ``last_error``) each time the reason changes."""
+        reported = {"reason": None}
+
+        def on_open_error(reason: str, retry_in_s: float) -> None:
+            if self.svc is not None:
+                self.svc.count("link_open_failures")
+            if reason == reported["reason"]:
+                return
+            reported["reason"] = reason
+            self._error(f"robot {robot.name}: link cannot be opened: {reason}; retrying with backoff "
+                        f"(next in {retry_in_s:.2f} s): check the device or URL given for {robot.name} "
+                        "(--robot NAME=URL or the lab's serial_url)")
+
+        return on_open_error
 
     def _publish(self, robot: str, msg: Telemetry) -> None:
         try:
@@ -437,15 +480,17 @@ class Bridge:
     def start(self) -> "Bridge":
         for h in self.handles.values():
             h.start()
-        for name in list(self.handles) + ["all"]:
-            self._decls.append(self.session.declare_queryable(f"arena/cmd/{name}/*", self._on_query))
+        self._decls.append(self.session.declare_queryable(self.COMMANDS, self._on_query))
         self._decls.append(self.session.declare_subscriber(ALL_ROBOTS, self._on_track))
         self._monitor = threading.Thread(target=self._watch, name="bridge-monitor", daemon=True)
         self._monitor.start()
         return self
 
     def close(self) -> None:
-        """Stop every robot, close logs, links and Zenoh declarations."""
+        """Stop every robot, close logs, links and Zenoh declarations (once; later calls return)."""
+        if self._closed:
+            return
+        self._closed = True
         self._stop.set()
         # Every robot gets STOP first (ending a mission writes its log and scores its path,
         # ~0.4 s each, and robot by robot that left the last one driving for over a second),
@@ -461,8 +506,12 @@ class Bridge:
         closers = [threading.Thread(target=h.close, name=f"close-{h.name}", daemon=True) for h in handles]
         for t in closers:
             t.start()
+        deadline = time.monotonic() + 3.0   # every robot has had STOP: do not hold up the exit
         for t in closers:
-            t.join(timeout=10.0)
+            t.join(timeout=max(0.0, deadline - time.monotonic()))
+        slow = [t.name for t in closers if t.is_alive()]
+        if slow:
+            log.warning("bridge shutdown: %s still closing after 3 s; exiting anyway", ", ".join(slow))
         for d in self._decls:
             try:
                 d.undeclare()
@@ -479,38 +528,55 @@ class Bridge:
         self.close()
 
     def _watch(self) -> None:
-        """Once every 0.25 s: status gauges; stop all robots if the router is gone."""
-        lost_since = None
-        while not self._stop.wait(0.25):
+        """Every ``router_poll_s``: stop every robot when the router is lost; every 0.25 s:
+        status gauges and state (degraded while a robot's link is down or the router lost)."""
+        next_gauges = 0.0
+        while not self._stop.wait(self.router_poll_s):
             if self.watch_router:
-                if _router_lost(self.session):
-                    lost_since = lost_since or time.monotonic()
-                    if time.monotonic() - lost_since > 0.5:
-                        for h in self.handles.values():
-                            if h.runner is not None:
-                                self._error(f"Zenoh router lost: stopping {h.name}")
-                                h.stop("aborted: Zenoh router lost")
-                else:
-                    lost_since = None
-            if self.svc is not None:
-                for name, h in self.handles.items():
-                    st = h.link.stats
-                    self.svc.gauge(f"{name}.link", "up" if h.link.connected else f"down: {h.link.last_error}")
-                    self.svc.gauge(f"{name}.rtt_ms", round(st.rtt_ms, 2) if st.rtt_ms is not None else -1)
-                    self.svc.gauge(f"{name}.quality", round(st.quality, 4))
-                    self.svc.gauge(f"{name}.crc_errors", st.crc_errors)
-                    self.svc.gauge(f"{name}.missing", st.missing)
-                    self.svc.gauge(f"{name}.phase", h.runner.phase if h.runner else ("e-stop" if h.estop else "idle"))
-                    self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
-                    self.svc.gauge(f"{name}.samples", h.samples)
-                    self.svc.gauge(f"{name}.published", h.published)
-                    res = h.last_result
-                    if res:
-                        self.svc.gauge(f"{name}.last_mission", f"{res['mission_id']}: {res['status']}")
-                        for src in ("odometry", "tracks"):
-                            err = res.get(f"path_error_{src}")
-                            if err:
-                                self.svc.gauge(f"{name}.path_error_{src}_cm", round(err["mean_m"] * 100, 2))
+                lost = _router_lost(self.session)
+                if lost and not self.router_lost and not self._stop.is_set():
+                    self._stop_all_router_lost()
+                self.router_lost = lost
+            if self.svc is not None and time.monotonic() >= next_gauges:
+                next_gauges = time.monotonic() + 0.25
+                self._gauges()
+
+    def _stop_all_router_lost(self) -> None:
+        """STOP to every robot first, then end their missions (see :meth:`RobotHandle.hold`)."""
+        handles = list(self.handles.values())
+        for h in handles:
+            h.hold()
+        running = [h.name for h in handles if h.runner is not None]
+        for h in handles:
+            h.stop("aborted: Zenoh router lost")
+        self._error(f"Zenoh router lost: stopped {', '.join(self.handles)}"
+                    + (f" (missions of {', '.join(running)} aborted)" if running else "")
+                    + "; check the router (`arena router`, --connect) and restart the missions")
+
+    def _gauges(self) -> None:
+        down = []
+        for name, h in self.handles.items():
+            st = h.link.stats
+            if not h.link.connected and (st.open_failures or st.disconnects):
+                down.append(name)
+            self.svc.gauge(f"{name}.link", "up" if h.link.connected else f"down: {h.link.last_error}")
+            self.svc.gauge(f"{name}.rtt_ms", round(st.rtt_ms, 2) if st.rtt_ms is not None else -1)
+            self.svc.gauge(f"{name}.quality", round(st.quality, 4))
+            self.svc.gauge(f"{name}.crc_errors", st.crc_errors)
+            self.svc.gauge(f"{name}.missing", st.missing)
+            self.svc.gauge(f"{name}.phase", h.runner.phase if h.runner else ("e-stop" if h.estop else "idle"))
+            self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
+            self.svc.gauge(f"{name}.samples", h.samples)
+            self.svc.gauge(f"{name}.published", h.published)
+            res = h.last_result
+            if res:
+                self.svc.gauge(f"{name}.last_mission", f"{res['mission_id']}: {res['status']}")
+                for src in ("odometry", "tracks"):
+                    err = res.get(f"path_error_{src}")
+                    if err:
+                        self.svc.gauge(f"{name}.path_error_{src}_cm", round(err["mean_m"] * 100, 2))
+        if not self._stop.is_set():
+            self.svc.set_state("degraded" if down or self.router_lost else "running")
 
     def _on_track(self, sample) -> None:
         now = time.time_ns()
@@ -526,8 +592,20 @@ class Bridge:
             h.on_track(track, now)
 
     def _on_query(self, query) -> None:
-        parts = str(query.key_expr).split("/")
-        robot, verb = parts[2], parts[3]
+        key = str(query.key_expr)
+        try:
+            robot, verb = parse_cmd_key(key)
+        except InvalidKey as exc:
+            log.info("refused a query on %s: not a command key", key)
+            if self.svc is not None:
+                self.svc.count("commands_bad_key")
+            try:
+                query.reply_err(str(exc))
+            except Exception as e:  # noqa: BLE001 - the querier may have gone
+                self._error(f"error reply to {key} failed: {e}")
+            return
+        if robot != "all" and robot not in self.handles:
+            return    # another bridge's robot (or nobody's): no reply, see the module docstring
         targets = list(self.handles) if robot == "all" else [robot]
         if verb in ("stop", "estop") and len(targets) > 1:
             for name in targets:   # every robot stops before any mission log is closed
@@ -580,6 +658,25 @@ class Bridge:
         if self.svc is not None:
             self.svc.count("commands_ok")
         return CommandReply(ok=True, robot=robot, verb=verb, detail=detail)
+
+
+def parse_cmd_key(key: str) -> tuple[str, str]:
+    """``arena/cmd/<robot>/<verb>`` -> (robot, verb); ``robot`` may be ``all``.
+
+    Raises :class:`arena.keys.InvalidKey` with what a command key looks like for anything else
+    (wildcards, too few or too many parts, an unknown verb)."""
+    try:
+        parsed = parse_key(key)
+        if parsed.kind != "cmd":
+            raise InvalidKey(f"{key!r} is a {parsed.kind!r} key")
+    except InvalidKey as exc:
+        detail = str(exc)
+        if detail.startswith(repr(key)):
+            detail = detail[len(repr(key)):].lstrip(": ")
+        raise InvalidKey(f"{key!r} is not a command key ({detail}). A command is a query on "
+                         f"{ROOT}/cmd/<robot>/<verb>: one robot name (or 'all', no wildcards) and one of "
+                         f"{', '.join(COMMAND_VERBS)}, e.g. {ROOT}/cmd/all/stop") from None
+    return parsed.parts["robot"], parsed.parts["verb"]
 
 
 def parse_robot_flag(value: str) -> tuple[str, str]:

@@ -175,6 +175,12 @@ def test_cli_client(lab):
     assert "r2: mission ok" in r.stdout and "mission_id=" in r.stdout
     r = subprocess.run(base + ["stop", "all", *z], capture_output=True, text=True, timeout=30)
     assert r.returncode == 0 and "r1: stop ok" in r.stdout and "r2: stop ok" in r.stdout
+    # --start-pose (mission only) lets a closed loop start before any track came
+    r = subprocess.run(base + ["mission", "r2", "circle", "--radius", "0.1", "--control", "closed",
+                               "--start-pose", "0.5,1.2,0", *z], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and "r2: mission ok" in r.stdout and "start_pose=[0.5, 1.2, 0.0]" in r.stdout, r.stderr
+    r = subprocess.run(base + ["stop", "r2", *z], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0 and "r2: stop ok" in r.stdout
     r = subprocess.run(base + ["stop", "nobody", *z[:4], "--timeout", "1"], capture_output=True, text=True, timeout=30)
     assert r.returncode == 1 and "no bridge answered for robot 'nobody'" in r.stderr and "Traceback" not in r.stderr
     r = subprocess.run(base + ["mission", "r1", "circle", "--power", "150", *z], capture_output=True, text=True,
@@ -261,3 +267,18 @@ def test_shutdown_stops_every_robot_before_ending_any_mission_or_closing_any_lin
     for name in ("r1", "r2"):
         mine = [what for what, n in order if n == name]
         assert "motors" not in mine[mine.index("stop"):], (name, order)
+
+
+@pytest.mark.parametrize("key", ["arena/cmd/**", "arena/cmd/*/x", "arena/cmd/*/stop", "arena/cmd/r1",
+                                 "arena/cmd/r1/stop/now", "arena/cmd/r1/dance", "arena/**"])
+def test_malformed_command_keys_get_an_error_reply_and_the_bridge_keeps_answering(lab, key):
+    s, world = lab["session"], lab["world"]
+    replies = list(s.get(key, timeout=3.0, consolidation=zenoh.ConsolidationMode.NONE))
+    assert len(replies) == 1 and replies[0].ok is None, [(r.ok, r.err) for r in replies]
+    text = replies[0].err.payload.to_string()
+    assert text.startswith(f"{key!r} is not a command key ("), text
+    assert "arena/cmd/<robot>/<verb>" in text and "'all'" in text and "mission, stop, estop, clear, led" in text
+    assert lab["bridge"].handles["r1"].runner is None and world.power(0) == (0, 0)   # nothing was carried out
+    (rep,) = ask(s, "r1", "mission", circle())
+    assert rep.ok, rep.error
+    assert [r.ok for r in ask(s, "all", "stop")] == [True, True]
