@@ -22,6 +22,7 @@ try:  # Python 3.11+
 except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
+from arena.codec_names import CODECS, DEFAULT_CODEC
 from arena.keys import InvalidKey, validate_name
 
 __all__ = [
@@ -35,6 +36,11 @@ __all__ = [
     "load_lab_config",
     "parse_lab_config",
     "NAMED_COLOURS",
+    "ServiceOption",
+    "SERVICE_OPTIONS",
+    "parse_service_options",
+    "apply_service_options",
+    "fill_service_options",
 ]
 
 #: Shell colours that may be given by name (RGB, 0-255).
@@ -156,8 +162,202 @@ class LabConfig:
         )
 
     def service(self, role: str) -> dict:
-        """Per-service options of ``role`` (``[services.<role>]``), empty if absent."""
+        """The options ``[services.<role>]`` gives (validated against :data:`SERVICE_OPTIONS` when
+        the file was loaded; numbers of float options are floats), empty if absent. Options the
+        table leaves out are not filled in: their defaults are in :data:`SERVICE_OPTIONS`."""
         return dict(self.services.get(role, {}))
+
+
+# ----------------------------------------------------------------------------- [services.<role>]
+
+
+@dataclass(frozen=True)
+class ServiceOption:
+    """One option of a ``[services.<role>]`` table: its type, allowed values and default.
+
+    ``type``: ``"str"``, ``"name"`` (a valid key chunk, see :func:`arena.keys.validate_name`),
+    ``"int"``, ``"float"`` (an integer is accepted and becomes a float), ``"bool"``,
+    ``"strings"`` (a list of strings; one string is a list of one), or alternatives joined by
+    ``|`` (``"int|bool"``). ``lo``/``hi``: inclusive bounds of a number; ``positive``: > 0;
+    ``choices``: allowed strings. ``dest``: the attribute of the service's command-line
+    namespace the option fills (default: the option's own name). ``default``: the value used
+    when neither the flag nor the lab file gives one (None: the service decides).
+    """
+
+    type: str
+    default: Any = None
+    help: str = ""
+    choices: tuple[str, ...] | None = None
+    lo: float | None = None
+    hi: float | None = None
+    positive: bool = False
+    dest: str | None = None
+
+    def expected(self) -> str:
+        """What a valid value looks like, for error messages."""
+        out = []
+        for kind in self.type.split("|"):
+            if kind in ("int", "float"):
+                what = "an integer" if kind == "int" else "a finite number"
+                if self.positive:
+                    what += " > 0"
+                elif self.lo is not None and self.hi is not None:
+                    what += f" in [{self.lo:g}, {self.hi:g}]"
+                elif self.lo is not None:
+                    what += f" >= {self.lo:g}"
+                elif self.hi is not None:
+                    what += f" <= {self.hi:g}"
+                out.append(what)
+            elif kind == "bool":
+                out.append("true or false")
+            elif kind == "strings":
+                out.append("a list of strings")
+            elif kind == "name":
+                out.append("a name of letters, digits, '-', '_' or '.'")
+            elif self.choices:
+                out.append(f"one of {', '.join(self.choices)}")
+            else:
+                out.append("a string")
+        return " or ".join(out)
+
+    def convert(self, value: Any) -> tuple[bool, Any]:
+        """``(True, value as the service takes it)`` if ``value`` is valid, else ``(False, None)``."""
+        for kind in self.type.split("|"):
+            if kind == "bool":
+                if isinstance(value, bool):
+                    return True, value
+            elif kind in ("int", "float"):
+                if isinstance(value, bool) or not isinstance(value, (int, float) if kind == "float" else int):
+                    continue
+                if not math.isfinite(value) or (self.positive and value <= 0):
+                    continue
+                if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
+                    continue
+                return True, (float(value) if kind == "float" else value)
+            elif kind == "strings":
+                items = [value] if isinstance(value, str) else value
+                if isinstance(items, list) and all(isinstance(v, str) and v for v in items):
+                    return True, list(items)
+            elif kind == "name":
+                try:
+                    return True, validate_name(value)
+                except InvalidKey:
+                    continue
+            elif isinstance(value, str) and (not self.choices or value in self.choices):
+                return True, value
+        return False, None
+
+
+def _opt(type: str, default: Any = None, help: str = "", **kw: Any) -> ServiceOption:  # noqa: A002
+    return ServiceOption(type, default, help, **kw)
+
+
+#: Every ``[services.<role>]`` table a lab file may hold, and its options (the one definition:
+#: :func:`parse_lab_config` checks the tables against it, :func:`apply_service_options` fills a
+#: service's unset flags from it). A flag given on the command line wins over the lab file.
+SERVICE_OPTIONS: dict[str, dict[str, ServiceOption]] = {
+    "edge": {  # arena edge
+        "slice_ms": _opt("float", 10.0, "slice duration, ms of sensor time", positive=True),
+        "codec": _opt("str", DEFAULT_CODEC, "window codec", choices=CODECS),
+        "speed": _opt("float", 1.0, "file replay speed (1 real time, 0 as fast as possible)", lo=0),
+        "hot_pixels": _opt("str", None, "'learn', or a file of hot pixels to drop"),
+        "hot_learn_s": _opt("float", 2.0, "learning time of hot pixels, s", positive=True),
+        "hot_save": _opt("str", None, "with hot_pixels = 'learn': write the learnt hot pixels here"),
+        "roi": _opt("str", None, "'lab' or a calibration JSON: keep events inside the arena"),
+        "roi_margin": _opt("int", 10, "growth of the region of interest, px", lo=0),
+        "denoise": _opt("int|bool", None, "background-activity window, µs (true: 10000)", positive=True),
+        "queue": _opt("int", 32, "windows queued before the oldest is dropped", lo=1),
+    },
+    "tracker": {  # arena track (live and offline)
+        "tracker": _opt("str", "fleet", "fleet (Kalman + assignment) or idtrack (the paper's Algorithm 1)",
+                        choices=("fleet", "idtrack")),
+        "detector": _opt("str", "default", "default (physical, adaptive) or paper", choices=("default", "paper")),
+        "backend": _opt("str", "grid", "DBSCAN backend", choices=("grid", "sklearn")),
+        "slice_ms": _opt("float", 10.0, "offline slice length, ms", positive=True),
+        "accumulation_ms": _opt("float", 100.0, "accumulation time t_a, ms", positive=True),
+        "chassis_cm": _opt("float", 10.0, "robot footprint side, cm", positive=True),
+        "robot_height_cm": _opt("float", 4.5, "height of the shell tops, cm", lo=0, hi=100),
+        "camera_height_m": _opt("float", None, "lens height above the mats, m (default: the calibration's)",
+                                positive=True),
+        "fleet_size": _opt("int", None, "number of robots (default: the lab's [[robots]])", lo=1),
+        "queue": _opt("int", 100, "live: newest slices kept when lagging", lo=1),
+        "names_from_groundtruth": _opt("bool", True, "live: name tracks after arena/groundtruth/* poses"),
+        "state_max_age_s": _opt("float", 600.0, "live: a state file older than this is not restored, s",
+                                lo=0, dest="state_max_age"),
+    },
+    "bridge": {  # arena bridge run (defaults as robot_bridge.service.BridgeOptions)
+        "telemetry_dir": _opt("str", "bridge_logs", "mission logs directory", dest="log_dir"),
+        "geofence_margin_m": _opt("float", 0.03, "stop a robot closer than this to the arena edge, m", lo=0,
+                                  dest="geofence_margin"),
+        "low_battery_mv": _opt("int", 4400, "stop missions below this battery voltage, mV", lo=0),
+        "baudrate": _opt("int", 57600, "serial baud rate", positive=True, dest="baud"),
+        "track_delay_s": _opt("float", 0.0, "extra age of track poses, s", lo=0, dest="track_delay"),
+    },
+    "groundtruth": {  # arena groundtruth (the webcam service; its source and detector are in [webcam])
+        "clock": _opt("str", "host", "frame times: host clock at capture, or the MJPEG stream's",
+                      choices=("host", "stream")),
+        "name": _opt("name", "webcam", "service name in arena status"),
+    },
+    "viewer": {  # arena view
+        "host": _opt("str", "127.0.0.1", "address to serve the page on"),
+        "port": _opt("int", 8080, "TCP port (0: any free port)", lo=0, hi=65535),
+        "accumulate_ms": _opt("float", 100.0, "sensor time the event image shows, ms", positive=True),
+        "rate": _opt("float", 10.0, "updates per second sent to the page", positive=True),
+    },
+    "recorder": {  # arena record
+        "keys": _opt("strings", None, "key expressions to record (default arena/**)"),
+        "queue": _opt("int", 10_000, "samples buffered before the file writer", lo=1),
+    },
+}
+
+
+def parse_service_options(role: str, options: Any, source: str = "lab config") -> dict:
+    """Check the ``[services.<role>]`` table ``options`` against :data:`SERVICE_OPTIONS`; returns
+    the options it gives, converted (an integer for a float option becomes a float). Raises
+    :class:`ConfigError` naming ``source``, the table and the key, listing the known ones."""
+    known = SERVICE_OPTIONS.get(role)
+    if known is None:
+        raise ConfigError(f"{source}: unknown table [services.{role}]; known service tables: "
+                          f"{', '.join(f'[services.{r}]' for r in SERVICE_OPTIONS)}")
+    if not isinstance(options, dict):
+        raise ConfigError(f"{source}: services.{role}: expected a table of options, got {options!r}")
+    extra = sorted(set(options) - set(known))
+    if extra:
+        raise ConfigError(f"{source}: services.{role}: unknown key(s) {', '.join(extra)}; "
+                          f"known: {', '.join(known)}")
+    out = {}
+    for key, value in options.items():
+        ok, v = known[key].convert(value)
+        if not ok:
+            raise ConfigError(f"{source}: services.{role}.{key}: expected {known[key].expected()}, got {value!r}")
+        out[key] = v
+    return out
+
+
+def fill_service_options(args: Any, role: str, options: dict) -> dict[str, str]:
+    """Set every attribute of ``args`` (an argparse namespace) that the command line left None
+    from ``options`` (checked ``[services.<role>]`` values), else the option's default: flags
+    win, then the lab file, then the defaults. Returns where each value came from
+    (``{dest: "flag" | "lab" | "default"}``)."""
+    origin = {}
+    for key, opt in SERVICE_OPTIONS[role].items():
+        dest = opt.dest or key
+        if getattr(args, dest, None) is not None:
+            origin[dest] = "flag"
+        elif key in options:
+            setattr(args, dest, options[key])
+            origin[dest] = "lab"
+        else:
+            setattr(args, dest, opt.default)
+            origin[dest] = "default"
+    return origin
+
+
+def apply_service_options(args: Any, lab: "LabConfig | None", role: str) -> dict[str, str]:
+    """Fill the unset (None) flags of ``role``'s command line from the lab file's
+    ``[services.<role>]`` (already checked when ``lab`` was loaded), else the defaults of
+    :data:`SERVICE_OPTIONS`. ``lab`` may be None (defaults only). See :func:`fill_service_options`."""
+    return fill_service_options(args, role, lab.service(role) if lab is not None else {})
 
 
 class _Reader:
@@ -403,9 +603,7 @@ def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | No
 
     s = root.sub("services")
     for role, opts in s.table.items():
-        if not isinstance(opts, dict):
-            raise s._err(role, "a table of options", opts)
-        lab.services[role] = dict(opts)
+        lab.services[role] = parse_service_options(role, opts, source)
     return lab
 
 

@@ -9,6 +9,7 @@ import os
 import sys
 
 from arena.codec_names import CODECS, DEFAULT_CODEC
+from arena.config import SERVICE_OPTIONS
 
 log = logging.getLogger("camera_edge")
 
@@ -61,22 +62,47 @@ def register_convert(sub) -> None:
     p.add_argument("--size", type=_size, default=None, metavar="WxH",
                    help="sensor size in px (for CSV/npy inputs, which do not carry it)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (shown for inputs > 64 MB)")
+    p.add_argument("--strict", action="store_true",
+                   help="fail (exit 2, no output) at the first skipped part of the input: corrupt packets, "
+                        "invalid events, a cut-off word (default: skip them, warn, count them in the summary)")
     p.set_defaults(func=run_convert)
 
 
 def run_convert(args) -> int:
+    import warnings
+
     from arena.formats import FormatError
+    from arena.formats.base import SkippedData
     from camera_edge.convert import convert
 
     w, h = args.size or (None, None)
     big = os.path.isfile(args.input) and os.path.getsize(args.input) > 64 << 20
-    try:
-        res = convert(args.input, args.output, evt=args.evt, compression=args.compression, width=w, height=h,
-                      progress=big and not args.no_progress)
-    except (FormatError, OSError) as exc:
-        print(f"arena convert: {exc}", file=sys.stderr)
-        return 2
+    skipped: dict[str, int] = {}   # what the reader skipped, by unit (its SkippedData warnings)
+
+    def tally(message, category, *_args, **_kw) -> None:
+        if not issubclass(category, SkippedData):
+            print(f"arena convert: warning: {message}", file=sys.stderr)
+            return
+        if not skipped:   # the first one says what; the summary says how many
+            print(f"arena convert: warning: {message} (see the summary; --strict makes this an error)",
+                  file=sys.stderr)
+        skipped[message.unit] = skipped.get(message.unit, 0) + message.count
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error" if args.strict else "always", SkippedData)
+        warnings.showwarning = tally
+        try:
+            res = convert(args.input, args.output, evt=args.evt, compression=args.compression, width=w, height=h,
+                          progress=big and not args.no_progress)
+        except SkippedData as exc:
+            print(f"arena convert: {exc} (--strict: stopped, no output written)", file=sys.stderr)
+            return 2
+        except (FormatError, OSError) as exc:
+            print(f"arena convert: {exc}", file=sys.stderr)
+            return 2
+    skipped.pop("invalid events", None)
     extra = f", {res['invalid']} invalid events skipped" if res["invalid"] else ""
+    extra += "".join(f", {n} {unit} skipped" for unit, n in sorted(skipped.items()))
     print(f"{args.output}: {res['events']} events, {res['width']} x {res['height']} px{extra}")
     return 0
 
@@ -118,31 +144,31 @@ def register_edge(sub) -> None:
     p.set_defaults(func=run_edge_cli)
 
 
-#: options of ``[services.edge]`` in the lab config (flags win) and their built-in defaults
-LAB_OPTIONS = {"slice_ms": 10.0, "codec": DEFAULT_CODEC, "speed": 1.0, "hot_pixels": None, "hot_learn_s": 2.0,
-               "hot_save": None, "roi": None, "roi_margin": 10, "denoise": None, "queue": 32}
+#: options of ``[services.edge]`` in the lab config (flags win) and their built-in defaults; the
+#: definition (types, ranges) is :data:`arena.config.SERVICE_OPTIONS` ``["edge"]``
+LAB_OPTIONS = {k: o.default for k, o in SERVICE_OPTIONS["edge"].items()}
 
 
 def _apply_lab_options(args, options: dict) -> str | None:
-    """Fill flags left unset from ``[services.edge]`` then the defaults; returns an error or None."""
-    unknown = sorted(set(options) - set(LAB_OPTIONS))
-    if unknown:
-        return f"unknown [services.edge] option(s) {unknown}; known: {', '.join(LAB_OPTIONS)}"
-    for key, default in LAB_OPTIONS.items():
-        if getattr(args, key) is None:
-            value = options.get(key, default)
-            if default is not None and value is not None and not isinstance(value, type(default)):
-                if isinstance(default, float) and isinstance(value, int):
-                    value = float(value)
-                else:
-                    return f"[services.edge] {key} must be a {type(default).__name__}, got {value!r}"
-            setattr(args, key, value)
+    """Fill flags left unset from ``[services.edge]`` ``options`` then the defaults (see
+    :func:`arena.config.apply_service_options`); returns an error or None."""
+    from arena.config import ConfigError, fill_service_options, parse_service_options
+
+    try:
+        fill_service_options(args, "edge", parse_service_options("edge", options))
+    except ConfigError as exc:
+        return str(exc)
+    return _check_options(args)
+
+
+def _check_options(args) -> str | None:
+    """Checks across options (after the flags and the lab file are merged); returns an error or None."""
     if isinstance(args.denoise, bool):  # `denoise = true` in the lab config: the default window
         args.denoise = 10_000 if args.denoise else None
     if args.denoise is not None and (not isinstance(args.denoise, int) or args.denoise <= 0):
         return f"denoise must be a time window in µs > 0 (or true), got {args.denoise!r}"
     if args.codec not in CODECS:
-        return f"[services.edge] codec must be one of {', '.join(CODECS)}, got {args.codec!r}"
+        return f"codec must be one of {', '.join(CODECS)}, got {args.codec!r}"
     if args.hot_save is not None and (not isinstance(args.hot_save, str) or args.hot_pixels != "learn"):
         return f"--hot-save (hot_save) takes a file name and needs --hot-pixels learn; got {args.hot_save!r}"
     return None
@@ -184,7 +210,7 @@ def _build_filters(args, width: int, height: int, lab_camera) -> list:
 
 
 def run_edge_cli(args) -> int:
-    from arena.config import ConfigError
+    from arena.config import ConfigError, apply_service_options
     from arena.keys import InvalidKey, validate_name
     from arena.service import stop_on_signals
     from arena.session import load_lab_from_args, open_session
@@ -216,7 +242,8 @@ def run_edge_cli(args) -> int:
         except ConfigError as exc:
             print(f"arena edge: {exc}", file=sys.stderr)
             return 2
-    err = _apply_lab_options(args, lab.service("edge") if lab is not None else {})
+    apply_service_options(args, lab, "edge")  # [services.edge] was checked when the lab file was loaded
+    err = _check_options(args)
     if err:
         print(f"arena edge: {err}", file=sys.stderr)
         return 2

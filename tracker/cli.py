@@ -15,9 +15,14 @@ Examples:
   arena track --input rec.aedat4 --calibration lab.toml --tracker idtrack --detector paper \\
               --tracks-out paper_tracks.csv                 # the paper's method, for comparison
   arena track --input rec.npz --calibration calib.json --tracks-out t.csv --slice-ms 5 --accumulation-ms 60
+  arena track --input rec.raw --lab lab.toml --tracks-out t.csv   # calibration, robots, [services.tracker]
   # live: subscribe arena/events/cam0, publish arena/robots/<id>, answer get('arena/robots/*')
   arena track --camera cam0 --calibration calib.json
   arena track --camera cam0 --lab lab.toml --tracks-out live.csv -e tcp/10.0.0.1:7447 -m client
+Options not given as flags come from the lab config's [services.tracker] table (tracker, detector,
+backend, slice_ms, accumulation_ms, chassis_cm, robot_height_cm, camera_height_m, fleet_size, queue,
+names_from_groundtruth, state_max_age_s), else the defaults. The method in use is printed at the end
+offline and shown live by `arena status` (gauges tracker, detector).
 CSV columns: t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events
 (t_us: time of the pose in the input's clock; arena metres; yaw CCW from +x; empty = unknown)."""
 
@@ -61,29 +66,29 @@ def register_track(sub) -> None:
     src.add_argument("--camera", metavar="NAME", help="live: track arena/events/NAME")
     p.add_argument("--calibration", metavar="FILE",
                    help="calibration JSON, or a lab config TOML (its camera's calibration); "
-                        "live mode may take it from --lab")
+                        "default: the --lab config's camera")
     p.add_argument("--tracks-out", metavar="CSV", help="write the tracks here (required offline)")
-    p.add_argument("--tracker", choices=("fleet", "idtrack"), default="fleet",
+    p.add_argument("--tracker", choices=("fleet", "idtrack"), default=None,
                    help="fleet: Kalman + assignment + life cycle (default); idtrack: the paper's Algorithm 1")
-    p.add_argument("--detector", choices=("default", "paper"), default="default",
+    p.add_argument("--detector", choices=("default", "paper"), default=None,
                    help="default: physical, adaptive; paper: DBSCAN x3 with the paper's pixel parameters")
-    p.add_argument("--backend", choices=("grid", "sklearn"), default="grid",
+    p.add_argument("--backend", choices=("grid", "sklearn"), default=None,
                    help="DBSCAN backend: grid (exact, fast; default) or sklearn (reference)")
-    p.add_argument("--slice-ms", type=_positive_ms, default=10.0, help="offline slice length, ms (default 10)")
-    p.add_argument("--accumulation-ms", type=_positive_ms, default=100.0,
+    p.add_argument("--slice-ms", type=_positive_ms, default=None, help="offline slice length, ms (default 10)")
+    p.add_argument("--accumulation-ms", type=_positive_ms, default=None,
                    help="accumulation time t_a, ms (default 100, the paper's best)")
-    p.add_argument("--chassis-cm", type=float, default=10.0, help="robot footprint side, cm (default 10)")
-    p.add_argument("--robot-height-cm", type=float, default=4.5,
+    p.add_argument("--chassis-cm", type=float, default=None, help="robot footprint side, cm (default 10)")
+    p.add_argument("--robot-height-cm", type=float, default=None,
                    help="height of the shell tops the camera sees, cm (default 4.5; parallax correction)")
     p.add_argument("--camera-height-m", type=float, default=None,
                    help="lens height above the mats, m (default: the calibration's camera_height_m, else 2.5)")
     p.add_argument("--fleet-size", type=int, default=None,
                    help="number of robots (caps confirmed tracks; default: the lab config's robots)")
     p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
-    p.add_argument("--queue", type=int, default=100,
+    p.add_argument("--queue", type=int, default=None,
                    help="live: newest slices kept when lagging or when a burst arrives late "
                         "(default 100: 1 s of 10 ms slices; a lagging tracker catches up at ~1 ms per slice)")
-    p.add_argument("--no-names", dest="names_from_groundtruth", action="store_false",
+    p.add_argument("--no-names", dest="names_from_groundtruth", action="store_false", default=None,
                    help="live: do not name tracks after the robots of arena/groundtruth/* poses")
     p.add_argument("--state", metavar="FILE", default=None,
                    help="live: fleet state file, written every second and read at start so that track IDs "
@@ -91,7 +96,7 @@ def register_track(sub) -> None:
                         "$STATE_DIRECTORY or ~/.local/state/arena)")
     p.add_argument("--no-state", dest="use_state", action="store_false",
                    help="live: neither read nor write the state file (every start is afresh)")
-    p.add_argument("--state-max-age", type=float, default=600.0, metavar="S",
+    p.add_argument("--state-max-age", type=float, default=None, metavar="S",
                    help="live: a state file older than this is not restored, s (default 600)")
     p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
     add_zenoh_arguments(p)
@@ -110,12 +115,33 @@ def _load_calibration(path: str | None, camera: str | None = None):
         raise SystemExit(f"arena track: {exc}") from None
 
 
+def _lab(args):
+    """The lab config of this run: ``--lab`` (or ``ARENA_LAB``), else offline a lab TOML given as
+    ``--calibration``; None without one."""
+    from arena.config import ConfigError, load_lab_config
+    from arena.session import load_lab_from_args
+
+    try:
+        lab = load_lab_from_args(args)
+        if lab is None and not args.camera and args.calibration and Path(args.calibration).suffix.lower() == ".toml":
+            lab = load_lab_config(args.calibration)
+    except ConfigError as exc:  # a lab file that does not say what it means: exit 2, like a bad flag
+        print(f"arena track: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return lab
+
+
 def run_track(args) -> int:
+    from arena.config import apply_service_options
+
+    lab = _lab(args)
+    # flags win, then the lab file's [services.tracker], then the defaults
+    apply_service_options(args, lab, "tracker")
     if args.camera:
         from tracker.service import run_live
 
         return run_live(args)
-    return run_offline(args)
+    return run_offline(args, lab)
 
 
 def _check_geometry(args) -> None:
@@ -134,7 +160,9 @@ def pipeline_options(args) -> dict:
                 camera_height_m=args.camera_height_m)
 
 
-def run_offline(args) -> int:
+def run_offline(args, lab=None) -> int:
+    """``arena track --input FILE``; ``lab``: the lab config (gives the calibration when there
+    is no ``--calibration``, and the number of robots)."""
     from arena.formats import FormatError, iter_events
     from tracker.calibration import CalibrationError
     from tracker.pipeline import Pipeline, TrackCsvWriter, iter_slices
@@ -144,15 +172,13 @@ def run_offline(args) -> int:
     if args.fleet_size is not None and args.fleet_size < 1:
         raise SystemExit(f"arena track: --fleet-size must be >= 1, got {args.fleet_size}")
     _check_geometry(args)
-    cal = _load_calibration(args.calibration)
+    calibration = args.calibration
+    if calibration is None and lab is not None and lab.cameras:  # the lab's camera: a file it names, or inline
+        calibration = lab.camera().calibration_file or lab.path
+    cal = _load_calibration(calibration)
     fleet_size = args.fleet_size
-    if fleet_size is None and Path(args.calibration).suffix.lower() == ".toml":
-        from arena.config import ConfigError, load_lab_config
-
-        try:  # a lab config also tells how many robots there are
-            fleet_size = len(load_lab_config(args.calibration).robots) or None
-        except ConfigError as exc:
-            raise SystemExit(f"arena track: {exc}") from None
+    if fleet_size is None and lab is not None:  # a lab config also tells how many robots there are
+        fleet_size = len(lab.robots) or None
     w, h = cal.image_size
     opts = {"width": w, "height": h} if Path(args.input).suffix.lower() in (".csv", ".npy", ".npz") else {}
     try:
@@ -182,8 +208,8 @@ def run_offline(args) -> int:
     except ValueError as exc:  # events outside the calibrated sensor
         raise SystemExit(f"arena track: {args.input}: {exc}") from None
     dt = time.perf_counter() - t0
-    print(f"{n_slices} slices, {n_rows} track rows -> {args.tracks_out} "
-          f"({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice)", file=sys.stderr)
+    print(f"{args.tracker} tracker, {args.detector} detector: {n_slices} slices, {n_rows} track rows -> "
+          f"{args.tracks_out} ({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice)", file=sys.stderr)
     return 0
 
 

@@ -16,7 +16,8 @@
   our own full queue, ``windows_dropped_in_queue``: windows lost on the way),
   ``tracks_out``, ``stream_restarts`` (the camera's clock jumped back by > 1 s: a replay
   looping; tracking starts afresh); gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
-  track publish, host clocks).
+  track publish, host clocks), ``tracker`` and ``detector`` (the method in use: ``fleet`` or
+  ``idtrack``, ``default`` or ``paper``).
 - Restarts: the fleet tracker's state (:meth:`tracker.fleet.FleetTracker.snapshot`: IDs,
   names, last poses) is written atomically to a small JSON state file every second and at
   exit, and restored at start (unless older than ``--state-max-age``), so track IDs come back
@@ -100,6 +101,9 @@ class LiveTracker:
     #: a window this much older than the last one is a restarted stream (e.g. a replay
     #: looping), not a late slice: the pipeline starts afresh
     RESTART_US = 1_000_000
+    #: a seq jump by more than this (1000 s of 10 ms windows) is a sequence reset (a restarted or
+    #: corrupt sender), counted in ``sequence_resets``, not that many windows missed
+    MAX_SEQ_GAP = 100_000
 
     #: a ground-truth pose names the nearest track within this distance, m ...
     NAME_GATE_M = 0.10
@@ -201,7 +205,11 @@ class LiveTracker:
             self._bad("windows_late", f"out-of-order window seq {win.seq} (ends {win.t_end_us} µs, "
                                       f"last {last} µs) skipped")
             return []
-        if self.last_seq is not None and win.seq > self.last_seq + 1:
+        if self.last_seq is not None and win.seq > self.last_seq + 1 + self.MAX_SEQ_GAP:
+            self._count("sequence_resets")
+            log.warning("camera %s: seq jumped from %d to %d: counted as a sequence reset, not as missed windows",
+                        self.camera, self.last_seq, win.seq)
+        elif self.last_seq is not None and win.seq > self.last_seq + 1:
             gap = win.seq - self.last_seq - 1
             # windows the edge itself dropped (its cumulative ``dropped`` grew by as many) are
             # the edge's count; the rest were lost on the way or in our own queue
@@ -300,6 +308,9 @@ def run_live(args) -> int:
     try:
         with open_session(args, lab=lab, wait_s=None) as session, Service(session, "tracker", name) as svc:
             live = LiveTracker(pipe, args.camera, svc, make_pipeline)
+            # the method in use, shown by `arena status` (it may come from the lab's [services.tracker])
+            svc.gauge("tracker", args.tracker)
+            svc.gauge("detector", args.detector)
             if state_path is not None:
                 _restore_state(live, state_path, args.state_max_age, svc)
             next_save = time.monotonic() + 1.0

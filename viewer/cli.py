@@ -34,17 +34,20 @@ def register(sub) -> None:
                "  arena view --lab lab.toml --camera cam0     # draw tracks with the lab's calibration\n"
                "  arena view --calibration runs/demo-x/cam0.calib.json\n"
                "  arena view --port 0                         # any free port (printed)\n"
-               "  arena view --host 0.0.0.0                   # reachable from other hosts (no auth!)")
-    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8080, help="TCP port (default 8080; 0 = any free port)")
+               "  arena view --host 0.0.0.0                   # reachable from other hosts (no auth!)\n"
+               "Options not given as flags come from the lab config's [services.viewer] table (host, port,\n"
+               "accumulate_ms, rate), else the defaults. Malformed keys and messages are counted (status\n"
+               "gauges bad_keys, bad) and ignored.")
+    p.add_argument("--host", default=None, help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=None, help="TCP port (default 8080; 0 = any free port)")
     p.add_argument("--camera", default=None,
                    help="camera whose events are shown (default: the lab's first camera, else the first seen)")
     p.add_argument("--calibration", metavar="JSON", default=None,
                    help="camera calibration file (pixel <-> arena m) used to draw tracks that carry no pixel "
                         "position; overrides the lab config's")
-    p.add_argument("--accumulate-ms", type=float, default=100.0,
+    p.add_argument("--accumulate-ms", type=float, default=None,
                    help="event image shows this much sensor time (default 100 ms)")
-    p.add_argument("--rate", type=float, default=10.0, help="updates per second sent to the page (default 10)")
+    p.add_argument("--rate", type=float, default=None, help="updates per second sent to the page (default 10)")
     p.add_argument("--name", default=None, help="service name in arena status (default view-<pid>)")
     add_zenoh_arguments(p)
     p.set_defaults(func=run)
@@ -62,11 +65,10 @@ def _read_calibration(path: str, what: str) -> dict:
     return calib
 
 
-def _lab_view(args):
+def _lab_view(args, lab):
     """(camera, homography arena->px, arena size m, robot size m) from --calibration and the lab config."""
     from viewer.state import arena_to_pixel_homography
 
-    lab = load_lab_from_args(args)
     calib = _read_calibration(args.calibration, "--calibration") if args.calibration else None
     if lab is None:
         H = arena_to_pixel_homography(calib) if calib else None
@@ -85,13 +87,16 @@ def run(args) -> int:
     """Run ``arena view``; returns the exit code."""
     from viewer.server import ViewerServer
     from viewer.service import subscribe
+    from arena.config import apply_service_options
     from viewer.state import ViewerConfigError, ViewerState
 
     try:
         name = validate_name(args.name or f"view-{os.getpid()}", "--name")
         if args.camera:
             validate_name(args.camera, "--camera")
-        camera, H, arena_size, robot_size = _lab_view(args)
+        lab = load_lab_from_args(args)
+        apply_service_options(args, lab, "viewer")  # flags win, then [services.viewer], then the defaults
+        camera, H, arena_size, robot_size = _lab_view(args, lab)
     except (InvalidKey, ConfigError, ViewerConfigError) as exc:
         print(f"arena view: {exc}", file=sys.stderr)
         return 2
@@ -112,9 +117,10 @@ def run(args) -> int:
     stop = stop_on_signals()
     thread = threading.Thread(target=server.serve_forever, name="http", daemon=True)
     try:
-        with open_session(args, wait_s=None) as session, Service(session, "viewer", name) as svc:
+        with open_session(args, lab=lab, wait_s=None) as session, Service(session, "viewer", name) as svc:
             subs = subscribe(session, state, camera)
-            svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count())))
+            svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count()),
+                                   s.gauge("bad", state.counts["bad"]), s.gauge("bad_keys", state.counts["bad_keys"])))
             thread.start()
             print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
             try:

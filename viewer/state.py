@@ -105,7 +105,8 @@ class ViewerState:
         self._telemetry: dict[str, dict[str, deque]] = {}
         self._status: dict[tuple[str, str], tuple[Status, float]] = {}
         self._alive: set[tuple[str, str]] = set()
-        self.counts = {"windows": 0, "tracks": 0, "groundtruth": 0, "telemetry": 0, "status": 0, "bad": 0}
+        self.counts = {"windows": 0, "tracks": 0, "groundtruth": 0, "telemetry": 0, "status": 0, "bad": 0,
+                       "bad_keys": 0}
         self.frame_no = 0
 
     # -- inputs -------------------------------------------------------------------------------
@@ -173,10 +174,19 @@ class ViewerState:
         with self._lock:
             (self._alive.add if alive else self._alive.discard)((role, name))
 
-    def on_bad(self) -> None:
-        """Count a payload that was not a valid arena message."""
+    def on_bad(self) -> int:
+        """Count a payload that was not a valid arena message (or not the one its key carries);
+        returns the count so far."""
         with self._lock:
             self.counts["bad"] += 1
+            return self.counts["bad"]
+
+    def on_bad_key(self) -> int:
+        """Count a sample or liveliness token on a key that is not a valid arena key; returns the
+        count so far."""
+        with self._lock:
+            self.counts["bad_keys"] += 1
+            return self.counts["bad_keys"]
 
     # -- outputs ------------------------------------------------------------------------------
     def track_count(self) -> int:

@@ -94,13 +94,21 @@ def test_lab_options_fill_unset_flags_and_are_checked():
     assert _apply_lab_options(args, {"slice_ms": 20, "codec": "planes-zstd/1", "denoise": 5000}) is None
     assert (args.slice_ms, args.codec, args.denoise, args.queue) == (20.0, "raw/1", 5000, 32)
     args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
-    assert "unknown [services.edge] option" in _apply_lab_options(args, {"slice": 3})
+    assert "services.edge: unknown key(s) slice; known: slice_ms" in _apply_lab_options(args, {"slice": 3})
     args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
-    assert "must be a int" in _apply_lab_options(args, {"queue": "big"})
+    assert "services.edge.queue: expected an integer >= 1, got 'big'" in _apply_lab_options(args, {"queue": "big"})
     args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
     assert _apply_lab_options(args, {"denoise": True}) is None and args.denoise == 10_000
     args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
-    assert "denoise must be" in _apply_lab_options(args, {"denoise": "x"})
+    assert "services.edge.denoise: expected an integer > 0 or true" in _apply_lab_options(args, {"denoise": "x"})
+
+
+def test_edge_lab_option_mistakes_are_one_clear_line_naming_file_table_and_key(tmp_path):
+    lab = tmp_path / "lab.toml"
+    lab.write_text('[[cameras]]\nname = "camx"\nsource = "nowhere.aedat4"\n[services.edge]\nslice_ms = "fast"\n')
+    r = _run("edge", "--lab", str(lab))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"arena edge: {lab}: services.edge.slice_ms: expected a finite number > 0, got 'fast'" in r.stderr
 
 
 def test_edge_reads_its_camera_from_the_lab_config(tmp_path):
