@@ -8,6 +8,7 @@ import logging
 import os
 import sys
 
+from arena.clitools import fail
 from arena.codec_names import CODECS, DEFAULT_CODEC
 from arena.config import SERVICE_OPTIONS
 
@@ -185,24 +186,24 @@ def _build_filters(args, width: int, height: int, lab_camera) -> list:
             try:
                 filters.append(HotPixelFilter(width, height, path=args.hot_pixels))
             except ValueError as exc:
-                raise SystemExit(f"arena edge: {exc}") from None
+                raise fail(f"arena edge: {exc}") from None
     if args.roi:
         if args.roi == "lab":
             if lab_camera is None or not lab_camera.calibration:
-                raise SystemExit("arena edge: --roi lab needs --lab with a calibration for this camera")
+                raise fail("arena edge: --roi lab needs --lab with a calibration for this camera")
             calib = lab_camera.calibration
         else:
             try:
                 with open(args.roi) as fh:
                     calib = json.load(fh)
             except (OSError, ValueError) as exc:
-                raise SystemExit(f"arena edge: cannot read calibration {args.roi}: {exc}") from None
+                raise fail(f"arena edge: cannot read calibration {args.roi}: {exc}") from None
         try:
             filters.append(RoiFilter.from_calibration(calib, margin_px=args.roi_margin))
         except (KeyError, ValueError, TypeError) as exc:
-            raise SystemExit(f"arena edge: {args.roi} is not a usable calibration: {exc}") from None
+            raise fail(f"arena edge: {args.roi} is not a usable calibration: {exc}") from None
         if filters[-1].mask_.shape != (height, width):
-            raise SystemExit(f"arena edge: calibration image size {filters[-1].mask_.shape[::-1]} differs "
+            raise fail(f"arena edge: calibration image size {filters[-1].mask_.shape[::-1]} differs "
                              f"from the sensor's {width} x {height}")
     if args.denoise is not None:
         filters.append(BackgroundActivityFilter(width, height, dt_us=args.denoise))

@@ -22,6 +22,7 @@ from urllib.parse import urlparse
 
 import numpy as np
 
+from arena.clitools import RUNTIME, fail
 from arena.session import add_zenoh_arguments
 
 log = logging.getLogger("simulator")
@@ -119,7 +120,7 @@ def _robots_from_args(args) -> tuple[list, dict]:
         try:
             lab = load_lab_config(args.lab)
         except (ConfigError, OSError) as e:
-            raise _usage(f"arena sim: cannot read lab config {args.lab}: {e}")
+            raise fail(f"arena sim: cannot read lab config {args.lab}: {e}")
         if lab.cameras:
             cam = lab.cameras[0]
             opts["width"], opts["height"] = args.width or cam.width, args.height or cam.height
@@ -157,31 +158,25 @@ def layout_poses(layout: str, n: int, arena_m: float) -> list[tuple[float, float
     return [pick(i).start_pose() for i in range(n)]
 
 
-def _usage(message: str) -> SystemExit:
-    """A usage or input error: its one line on stderr, exit 2 (a runtime failure exits 1)."""
-    print(message, file=sys.stderr)
-    return SystemExit(2)
-
-
 def _check_args(args) -> None:
     if args.robots is not None and not 0 <= args.robots <= 50:
-        raise _usage(f"arena sim: --robots must be in 0..50, got {args.robots}")
+        raise fail(f"arena sim: --robots must be in 0..50, got {args.robots}")
     if not 0.05 <= args.power <= 1.0:
-        raise _usage(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
+        raise fail(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
     if args.duration < 0:
-        raise _usage(f"arena sim: --duration must be >= 0, got {args.duration}")
+        raise fail(f"arena sim: --duration must be >= 0, got {args.duration}")
     if not 1 <= args.telemetry_hz <= 1000:
-        raise _usage(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
+        raise fail(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
     for name in ("camera_port", "webcam_port", "robot_base_port"):
         v = getattr(args, name)
         if v is not None and not 0 <= v <= 65535:
-            raise _usage(f"arena sim: --{name.replace('_', '-')} must be a TCP port 0..65535, got {v}")
+            raise fail(f"arena sim: --{name.replace('_', '-')} must be a TCP port 0..65535, got {v}")
     for name in ("width", "height"):
         v = getattr(args, name)
         if v is not None and not 16 <= v <= 4096:
-            raise _usage(f"arena sim: --{name} must be 16..4096 px, got {v}")
+            raise fail(f"arena sim: --{name} must be 16..4096 px, got {v}")
     if args.flicker < 0:
-        raise _usage(f"arena sim: --flicker must be >= 0 Hz, got {args.flicker}")
+        raise fail(f"arena sim: --flicker must be >= 0 Hz, got {args.flicker}")
 
 
 def run(args) -> int:
@@ -220,7 +215,7 @@ def run(args) -> int:
                                                        drop_when_slow=not args.fast,
                                                        header=stream_header(camera.width, camera.height)))
             except OSError as e:
-                raise SystemExit(f"arena sim: cannot listen on camera port {opts['camera_port']}: {e}")
+                raise fail(f"arena sim: cannot listen on camera port {opts['camera_port']}: {e}", RUNTIME)
             print(f"camera   {cam.url}   EVT 3.0, {camera.width}x{camera.height}", flush=True)
             if not args.no_webcam:
                 _start_webcam(stack, world, args)
@@ -255,7 +250,7 @@ def _start_webcam(stack: ExitStack, world, args) -> None:
     try:
         web = stack.enter_context(WebcamServer(world, host=args.host, port=args.webcam_port))
     except OSError as e:
-        raise SystemExit(f"arena sim: cannot listen on webcam port {args.webcam_port}: {e}")
+        raise fail(f"arena sim: cannot listen on webcam port {args.webcam_port}: {e}", RUNTIME)
     print(f"webcam   {web.url}", flush=True)
 
 
@@ -269,7 +264,7 @@ def _start_robots(stack: ExitStack, world, args, opts) -> None:
                                       clock=lambda: world.t)   # the robots' clocks run with the physics
             stack.enter_context(emu)
         except OSError as e:
-            raise SystemExit(f"arena sim: cannot listen on robot port {port} for {spec.name}: {e}")
+            raise fail(f"arena sim: cannot listen on robot port {port} for {spec.name}: {e}", RUNTIME)
         print(f"robot    {spec.name:10s} {emu.url}", flush=True)
 
 

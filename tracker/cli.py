@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+from arena.clitools import fail
+
 TRACK_EXAMPLES = """\
 Examples:
   # offline: any recording the edge reads (.raw EVT 2/2.1/3, .dat, .aedat4, the paper's .csv, .npy/.npz)
@@ -107,12 +109,12 @@ def _load_calibration(path: str | None, camera: str | None = None):
     from tracker.calibration import CalibrationError, load_calibration
 
     if not path:
-        raise SystemExit("arena track: --calibration FILE is required (calibration JSON or lab TOML); "
+        raise fail("arena track: --calibration FILE is required (calibration JSON or lab TOML); "
                          "make one with `arena calibrate`")
     try:
         return load_calibration(path, camera)
     except CalibrationError as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
 
 
 def _lab(args):
@@ -146,11 +148,11 @@ def run_track(args) -> int:
 
 def _check_geometry(args) -> None:
     if not (args.chassis_cm > 0 and math.isfinite(args.chassis_cm)):
-        raise SystemExit(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
+        raise fail(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
     if not (0 <= args.robot_height_cm < 100):
-        raise SystemExit(f"arena track: --robot-height-cm must be in [0, 100), got {args.robot_height_cm}")
+        raise fail(f"arena track: --robot-height-cm must be in [0, 100), got {args.robot_height_cm}")
     if args.camera_height_m is not None and not (args.camera_height_m > args.robot_height_cm / 100):
-        raise SystemExit(f"arena track: --camera-height-m must be above the robots, got {args.camera_height_m}")
+        raise fail(f"arena track: --camera-height-m must be above the robots, got {args.camera_height_m}")
 
 
 def pipeline_options(args) -> dict:
@@ -168,9 +170,9 @@ def run_offline(args, lab=None) -> int:
     from tracker.pipeline import Pipeline, TrackCsvWriter, iter_slices
 
     if not args.tracks_out:
-        raise SystemExit("arena track: --tracks-out CSV is required with --input")
+        raise fail("arena track: --tracks-out CSV is required with --input")
     if args.fleet_size is not None and args.fleet_size < 1:
-        raise SystemExit(f"arena track: --fleet-size must be >= 1, got {args.fleet_size}")
+        raise fail(f"arena track: --fleet-size must be >= 1, got {args.fleet_size}")
     _check_geometry(args)
     calibration = args.calibration
     if calibration is None and lab is not None and lab.cameras:  # the lab's camera: a file it names, or inline
@@ -186,27 +188,27 @@ def run_offline(args, lab=None) -> int:
     except TypeError:  # this format takes no size option
         reader = iter_events(args.input)
     except (FormatError, OSError) as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
     try:
         pipe = Pipeline(cal, fleet_size=fleet_size, **pipeline_options(args))
     except CalibrationError as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
     slice_us = int(round(args.slice_ms * 1000))
     n_rows = n_slices = 0
     t0 = time.perf_counter()
     try:
         with reader, open(args.tracks_out, "w", newline="") as fh:
             if reader.width and reader.height and (reader.width, reader.height) != (w, h):
-                raise SystemExit(f"arena track: {args.input} is {reader.width}x{reader.height} px but the "
+                raise fail(f"arena track: {args.input} is {reader.width}x{reader.height} px but the "
                                  f"calibration is for {w}x{h} px")
             writer = TrackCsvWriter(fh)
             for t_end, ev in iter_slices(reader, slice_us):
                 n_rows += writer.write(pipe.push(ev, t_end))
                 n_slices += 1
     except (FormatError, OSError) as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
     except ValueError as exc:  # events outside the calibrated sensor
-        raise SystemExit(f"arena track: {args.input}: {exc}") from None
+        raise fail(f"arena track: {args.input}: {exc}") from None
     dt = time.perf_counter() - t0
     print(f"{args.tracker} tracker, {args.detector} detector: {n_slices} slices, {n_rows} track rows -> "
           f"{args.tracks_out} ({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice)", file=sys.stderr)
@@ -263,18 +265,18 @@ def run_calibrate(args) -> int:
 
     L = args.arena_size
     if not (L > 0 and math.isfinite(L)):
-        raise SystemExit(f"arena calibrate: --arena-size must be > 0 m, got {L}")
+        raise fail(f"arena calibrate: --arena-size must be > 0 m, got {L}")
     image = None
     try:
         if args.points:
             if not args.size:
-                raise SystemExit("arena calibrate: --size WxH is required with --points")
+                raise fail("arena calibrate: --size WxH is required with --points")
             cal = Calibration.from_points([p for p, _ in args.points], [a for _, a in args.points], args.size)
         else:
             if args.image:
                 image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
                 if image is None:
-                    raise SystemExit(f"arena calibrate: cannot read the image {args.image!r}")
+                    raise fail(f"arena calibrate: cannot read the image {args.image!r}")
             else:
                 image = _event_image(args.events, args.seconds)
             try:
@@ -289,7 +291,7 @@ def run_calibrate(args) -> int:
 
             cal = Calibration.from_points(corners, mat_points(L), (image.shape[1], image.shape[0]))
     except CalibrationError as exc:
-        raise SystemExit(f"arena calibrate: {exc}") from None
+        raise fail(f"arena calibrate: {exc}") from None
     cal.save(args.output)
     preview = args.preview or str(Path(args.output).with_suffix(".png"))
     if image is None:
@@ -309,7 +311,7 @@ def _event_image(path: str, seconds: float):
         with iter_events(path) as reader:
             w, h = reader.width, reader.height
             if not (w and h):
-                raise SystemExit(f"arena calibrate: {path} does not carry its sensor size; convert it with "
+                raise fail(f"arena calibrate: {path} does not carry its sensor size; convert it with "
                                  "`arena convert --size WxH` first")
             img = np.zeros(h * w, dtype=np.float64)
             t0 = None
@@ -322,7 +324,7 @@ def _event_image(path: str, seconds: float):
                 if chunk.size == 0:
                     break
     except (FormatError, OSError) as exc:
-        raise SystemExit(f"arena calibrate: {exc}") from None
+        raise fail(f"arena calibrate: {exc}") from None
     img = np.log1p(img.reshape(h, w))
     return (255.0 * img / max(img.max(), 1e-9)).astype(np.uint8)
 

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import zenoh
 
+from arena.clitools import fail
 from arena.codec import CodecError, decode
 from arena.keys import events_key, robot_key, validate_name
 from arena.messages import EventWindow, GroundTruthPose, MessageError, Track
@@ -264,24 +265,24 @@ def run_live(args) -> int:
     try:
         lab = load_lab_from_args(args)
     except ConfigError as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
     try:
         events_key(args.camera)
     except ValueError as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
     if args.calibration:
         cal = _load_calibration(args.calibration, args.camera)
     elif lab is not None:
         try:
             cam = lab.camera(args.camera)
             if cam.calibration is None:
-                raise SystemExit(f"arena track: camera {args.camera!r} of {lab.path} has no calibration; "
+                raise fail(f"arena track: camera {args.camera!r} of {lab.path} has no calibration; "
                                  "give --calibration FILE")
             cal = Calibration.from_dict(cam.calibration, f"{lab.path} camera {args.camera}")
         except (ConfigError, CalibrationError) as exc:
-            raise SystemExit(f"arena track: {exc}") from None
+            raise fail(f"arena track: {exc}") from None
     else:
-        raise SystemExit("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
+        raise fail("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
     fleet_size = args.fleet_size if args.fleet_size is not None else ((len(lab.robots) or None) if lab is not None else None)
     _check_geometry(args)
 
@@ -291,7 +292,7 @@ def run_live(args) -> int:
     try:
         pipe = make_pipeline()
     except CalibrationError as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}") from None
     # compile the kernels before declaring liveliness: "alive" then means "tracks at full rate"
     t0 = time.monotonic()
     warm_up(make_pipeline)
@@ -375,7 +376,7 @@ def run_live(args) -> int:
                 for pub in publishers.values():
                     pub.undeclare()
     except SessionError as exc:
-        raise SystemExit(f"arena track: {exc}") from None
+        raise fail(f"arena track: {exc}", exc.exit_code) from None
     finally:
         if csv_file is not None:
             csv_file.close()
