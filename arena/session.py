@@ -2,7 +2,8 @@
 
 Settings come from, in increasing priority: built-in defaults, the lab config's ``[zenoh]`` table,
 environment variables, and command-line flags (the same flags as the zenoh-python examples:
-``-m/--mode``, ``-e/--connect``, ``-l/--listen``, ``--zenoh-config``).
+``-m/--mode``, ``-e/--connect``, ``-l/--listen``, ``-c/--config`` (alias ``--zenoh-config``) and
+``--cfg KEY:VALUE``, any Zenoh setting as a JSON5 value, applied last).
 
 Defaults: **client** mode connecting to a router on ``tcp/127.0.0.1:7447`` (start one with
 ``arena router``; ``arena demo`` starts its own), multicast scouting **off** (labs share networks;
@@ -29,6 +30,7 @@ import contextlib
 import json
 import logging
 import os
+import re
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -67,6 +69,8 @@ class ZenohSettings:
     tls: dict = field(default_factory=dict)
     user: str | None = None
     password: str | None = None
+    #: ``KEY:VALUE`` settings (``--cfg``): a Zenoh config path and a JSON5 value, applied last
+    cfg: list[str] = field(default_factory=list)
 
     def to_zenoh_config(self) -> zenoh.Config:
         """Build the ``zenoh.Config`` for these settings."""
@@ -110,12 +114,37 @@ class ZenohSettings:
         if self.user is not None:
             put("transport/auth/usrpwd/user", self.user)
             put("transport/auth/usrpwd/password", self.password or "")
+        for item in self.cfg:
+            key, value = parse_cfg(item)
+            try:
+                conf.insert_json5(key, value)
+            except Exception as exc:  # zenoh.ZError: an unknown key or a value that is not JSON5
+                raise SessionError(f"--cfg {item!r} was refused: {_cfg_refusal(str(exc))}") from None
         return conf
 
     def describe(self) -> str:
         ends = ", ".join(self.connect) or "none"
         lst = f", listening on {', '.join(self.listen)}" if self.listen else ""
         return f"{self.mode} mode, connecting to {ends}{lst}"
+
+
+def parse_cfg(item: str) -> tuple[str, str]:
+    """Split a ``--cfg KEY:VALUE`` setting at its first colon (values may hold colons, as
+    endpoints do); raise :class:`SessionError` (exit 2) naming it when it has no key or value."""
+    key, sep, value = item.partition(":")
+    if not sep or not key.strip() or not value.strip():
+        raise SessionError(f"--cfg {item!r}: expected KEY:VALUE, a Zenoh config path and a JSON5 value, "
+                           "e.g. --cfg 'scouting/multicast/enabled:false'")
+    return key.strip(), value.strip()
+
+
+def _cfg_refusal(text: str) -> str:
+    """Zenoh's reason for refusing a ``--cfg`` setting, in one line, with what to do."""
+    if "unknown key" in text:
+        return "unknown key; KEY is a path in Zenoh's config, e.g. transport/unicast/max_links"
+    m = re.search(r'msg: "(.*?)", location', text)
+    why = m.group(1).split("= ")[-1].strip() if m else text.split(" at ")[0]
+    return f"{why}; VALUE is JSON5 (a string needs quotes: --cfg 'mode:\"peer\"')"
 
 
 #: how long a DROP sample waits for room in a full transmit queue, µs (Zenoh's default: 1000)
@@ -133,8 +162,11 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                    help=f"endpoint to connect to, repeatable (default {DEFAULT_ROUTER})")
     g.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=None,
                    help="endpoint to listen on, repeatable (e.g. tcp/0.0.0.0:7447)")
-    g.add_argument("--zenoh-config", metavar="JSON5", default=None,
+    g.add_argument("-c", "--config", "--zenoh-config", dest="zenoh_config", metavar="JSON5", default=None,
                    help="Zenoh config file for anything else: TLS, user/password, access control")
+    g.add_argument("--cfg", metavar="KEY:VALUE", action="append", default=None,
+                   help="any Zenoh setting, repeatable, applied last: a config path and a JSON5 value, "
+                        "e.g. --cfg 'transport/unicast/max_links:2'")
     g.add_argument("--multicast-scouting", action="store_true", default=None,
                    help="enable multicast scouting (off by default)")
     g.add_argument("--lease-ms", type=int, default=None,
@@ -194,6 +226,10 @@ def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | No
             s.multicast_scouting = True
         if getattr(args, "lease_ms", None):
             s.lease_ms = args.lease_ms
+        if getattr(args, "cfg", None):
+            s.cfg = list(args.cfg)
+            for item in s.cfg:
+                parse_cfg(item)  # a malformed one is named now, before anything is opened
     if s.mode not in MODES:
         raise SessionError(f"Zenoh mode {s.mode!r} is not one of {', '.join(MODES)}")
     return s
