@@ -42,7 +42,11 @@ def register(subparsers) -> None:
                "  arena demo --lighting dimmed --view         # and open http://127.0.0.1:8080\n"
                "  arena demo --duration 10 --out /tmp/runs --quiet\n"
                "  arena demo --prepare                         # once after installing: compile, then exit\n"
-               "Afterwards: arena replay RUN_DIR & arena view   # watch the recorded run again")
+               "Afterwards, to watch the recorded run again (the replay is its own router):\n"
+               "  arena replay RUN_DIR --mode router --listen tcp/127.0.0.1:7447 --start-delay 3 \\\n"
+               "      & arena view --calibration RUN_DIR/cam0.calib.json\n"
+               "Exit code 0 when the run was ok; 1 when it was not (the results' first lines,\n"
+               "summary.json's \"problems\" and report.md say why); 2 for bad options; 130 when interrupted.")
     p.add_argument("--robots", type=int, default=4, help="number of robots, 1-16 (default 4)")
     p.add_argument("--mission", choices=MISSIONS, default="mixed",
                    help="circle, square, or mixed: circles and squares alternately (default)")
@@ -171,6 +175,8 @@ def run(args) -> int:
     first_track_s = None
     sup = Supervisor(logs)
     code = 0
+    failure = None
+    interrupted = False
     calib = run_dir / "cam0.calib.json"
     try:
         _compile_kernels(sup)
@@ -217,7 +223,7 @@ def run(args) -> int:
                                   nice=args.observer_nice))
             bridge = python_cmd("bridge", "run", *[a for i, r in enumerate(robots)
                                                    for a in ("--robot", f"{r}=socket://127.0.0.1:{robot_base + i}")],
-                                "--name", "demo", "--log-dir", str(run_dir / "telemetry"), *z)
+                                "--name", "demo", "--log-dir", str(run_dir / "telemetry"), "--require-all", *z)
             specs.append(ProcSpec("bridge", bridge, ready_check=alive.has("bridge", "demo"), ready_timeout_s=90,
                                   stop_timeout_s=5))
             for proc in early[2:] + [sup.start(spec, wait=False) for spec in specs]:
@@ -235,18 +241,25 @@ def run(args) -> int:
                 if first_track_s is None and alive.tracks_seen:
                     first_track_s = alive.tracks_seen - t_start
                 stop.wait(0.2)
+            interrupted = stop.is_set()
             clock["t0"] = None   # the missions are over: no more live tables while stopping
     except KeyboardInterrupt:
         print("\narena demo: interrupted, stopping (robots first)...", flush=True)
         code = 130
+        interrupted = True
     except (RuntimeError, SessionError) as exc:
         print(f"arena demo: {exc}", file=sys.stderr)
         code = 1
+        failure = str(exc)
     finally:
         codes = sup.stop_all(first=["bridge", "sim"])
+    services = {name for name in sup.procs if not name.startswith("cmd-")}
     pids = {name: p.popen.pid for name, p in sup.procs.items()}
-    summary = _finish(run_dir, args, first_track_s, codes, pids)
-    if code == 0 and not summary.get("ok", False):
+    summary = _finish(run_dir, args, first_track_s, {n: c for n, c in codes.items() if n in services}, pids,
+                      killed=[n for n in sup.killed() if n in services],
+                      died={n: c for n, c in sup.died().items() if n in services},
+                      failure=failure, interrupted=interrupted)
+    if code == 0 and not summary["ok"]:
         code = 1
     return code
 
@@ -432,31 +445,53 @@ def _latency(log_path: Path) -> dict | None:
     return lat if isinstance(lat, dict) and lat.get("n") else None
 
 
-def _windows(mcap_path: Path) -> dict | None:
+def _windows(mcap_path: Path, missions_ns: int | None = None) -> dict | None:
     """Event windows over the whole run from the edge's and the tracker's last status in the MCAP
     recording: how many the edge published and dropped (DROP policy), and how many the tracker
-    took in, found missing on the way (sequence gaps) or dropped from its queue."""
+    took in, found missing on the way (sequence gaps) or dropped from its queue. With
+    ``missions_ns`` (host ns when the missions started), ``"during_missions"`` holds the losses
+    after it: the counters' growth since each service's last status before then."""
+    lost_keys = {"edge": {"edge_dropped": "windows_dropped"},
+                 "tracker": {"tracker_missed": "windows_missed", "tracker_queue_dropped": "windows_dropped_in_queue"}}
     try:
         from mcap.reader import make_reader
 
         last: dict[str, dict] = {}
+        before: dict[str, dict] = {}
         with open(mcap_path, "rb") as f:
             for _, ch, m in make_reader(f).iter_messages(topics=["arena/status/edge/cam0", "arena/status/tracker/cam0"]):
-                last[ch.topic.split("/")[2]] = json.loads(m.data).get("counters", {})
+                role = ch.topic.split("/")[2]
+                last[role] = json.loads(m.data).get("counters", {})
+                if missions_ns is not None and m.log_time <= missions_ns:
+                    before[role] = last[role]
     except Exception:  # noqa: BLE001 - an unreadable recording only loses this line of the report
         return None
     if set(last) != {"edge", "tracker"}:
         return None
     e, t = last["edge"], last["tracker"]
-    return {"edge_published": e.get("windows", 0), "edge_dropped": e.get("windows_dropped", 0),
-            "tracker_in": t.get("windows_in", 0), "tracker_missed": t.get("windows_missed", 0),
-            "tracker_queue_dropped": t.get("windows_dropped_in_queue", 0)}
+    out = {"edge_published": e.get("windows", 0), "edge_dropped": e.get("windows_dropped", 0),
+           "tracker_in": t.get("windows_in", 0), "tracker_missed": t.get("windows_missed", 0),
+           "tracker_queue_dropped": t.get("windows_dropped_in_queue", 0)}
+    if missions_ns is not None:
+        out["during_missions"] = {k: last[role].get(c, 0) - before.get(role, {}).get(c, 0)
+                                  for role, keys in lost_keys.items() for k, c in keys.items()}
+    return out
 
 
-def _report(run_dir: Path, args, summary: dict, scores, tracks, truth, end_us) -> Path:
+def _lost(wins: dict) -> int:
+    return sum(int(wins.get(k) or 0) for k in ("edge_dropped", "tracker_missed", "tracker_queue_dropped"))
+
+
+def _missions_start_ns(manifests: list[dict]) -> int | None:
+    """When the first mission started (host ns, from the manifests' ``start_ns``), or None."""
+    starts = [m["start_ns"] for m in manifests if isinstance(m.get("start_ns"), int)]
+    return min(starts) if starts else None
+
+
+def _report(run_dir: Path, args, summary: dict, scores, tracks, truth, end_us, manifests) -> Path:
     """Write the run's ``report.md`` (with plots); also scores the webcam ground truth against
     the exact poses (``summary["webcam"]``)."""
-    from demo.report import read_manifests, webcam_as_tracks, write_demo_report
+    from demo.report import replay_hint, run_files, webcam_as_tracks, write_demo_report
     from groundtruth.metrics import evaluate, read_truth_csv
 
     webcam_scores = None
@@ -465,17 +500,28 @@ def _report(run_dir: Path, args, summary: dict, scores, tracks, truth, end_us) -
         if end_us is not None:
             cam = cam[cam["t_us"] <= end_us]
         webcam_scores = evaluate(webcam_as_tracks(cam), truth, gate_m=0.10)
-        summary["webcam"] = {k: getattr(webcam_scores, k) for k in ("precision", "recall", "mae_cm",
-                                                                     "heading_mae_deg", "n_frames")}
+        w = webcam_scores.to_dict()
+        summary["webcam"] = {k: w[k] for k in ("precision", "recall", "mae_cm", "heading_mae_deg", "n_frames")}
     setup = (f"{args.robots} robots, {args.mission} missions at {args.power:.0%} power, {args.lighting} light, "
              f"{args.duration:g} s of missions, seed {args.seed}, tracker `{args.tracker}`, control `{args.control}`.")
-    return write_demo_report(run_dir, setup, summary, scores, tracks, truth, webcam_scores,
-                             read_manifests(run_dir / "telemetry"))
+    return write_demo_report(run_dir, setup, summary, scores, tracks, truth, webcam_scores, manifests,
+                             files=run_files(run_dir, also=("report.md", "report/", "summary.json")),
+                             replay=replay_hint(run_dir, args.view_port))
 
 
-def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
-    """Score the run, write the report, print where everything is."""
-    summary: dict = {"run_dir": str(run_dir), "exit_codes": codes, "pids": pids, "first_track_s": first_track_s}
+def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=None, failure=None,
+            interrupted=False) -> dict:
+    """Score the run, judge it (:func:`demo.verdict.verdict`), write the report and
+    ``summary.json``, print the results: first whether the run was ok and why not."""
+    from demo.report import OK_TEXT, read_manifests, replay_hint, run_files
+    from demo.verdict import verdict
+
+    facts: dict = {"run_dir": str(run_dir), "exit_codes": codes, "killed": list(killed), "died": dict(died or {}),
+                   "pids": pids, "first_track_s": first_track_s}
+    if failure:
+        facts["failure"] = failure.strip().splitlines()[0] if failure.strip() else failure
+    if interrupted:
+        facts["interrupted"] = True
     tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
     scored = None
     if tracks.exists() and truth.exists():
@@ -485,37 +531,58 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
             tr, gt = read_tracks_csv(tracks), read_truth_csv(truth)
             end_us = _missions_end_us(run_dir / "telemetry")
             if end_us is not None:   # score the missions, not the robots parked while stopping
-                summary["scored_until_us"] = end_us
+                facts["scored_until_us"] = end_us
                 tr, gt = tr[tr["t_us"] <= end_us], gt[gt["t_us"] <= end_us]
+            facts["truth_rows"] = int(len(gt))
             scores = evaluate(tr, gt, gate_m=0.10)
-            summary["scores"] = scores.to_dict()
-            summary["ok"] = True
+            facts["scores"] = scores.to_dict()
             scored = (scores, tr, gt, end_us)
         except Exception as exc:  # noqa: BLE001 - report what failed rather than crash at the end
-            summary["score_error"] = str(exc)
+            facts["score_error"] = str(exc) or type(exc).__name__
+    else:
+        facts["score_error"] = ", ".join(p.name for p in (tracks, truth) if not p.exists()) + " missing"
     rt = _sim_realtime(run_dir / "logs" / "sim.log")
     if rt is not None:
-        summary["sim_realtime"] = rt
-    lat, wins = _latency(run_dir / "logs" / "scorer.log"), _windows(run_dir / "arena.mcap")
+        facts["sim_realtime"] = rt
+    manifests = read_manifests(run_dir / "telemetry")
+    lat = _latency(run_dir / "logs" / "scorer.log")
+    wins = _windows(run_dir / "arena.mcap", _missions_start_ns(manifests))
     if lat is not None:
-        summary["latency"] = lat
+        facts["latency"] = lat
     if wins is not None:
-        summary["windows"] = wins
+        facts["windows"] = wins
+
+    def judge() -> tuple[bool, list[str]]:
+        return verdict(exit_codes=codes, killed=killed, died=died, failure=facts.get("failure"),
+                       interrupted=interrupted, manifests=manifests, robots=args.robots, sim_realtime=rt,
+                       windows=wins, truth_rows=facts.get("truth_rows"), scores=facts.get("scores"),
+                       score_error=facts.get("score_error"), report_error=facts.get("report_error"))
+
+    ok, problems = judge()
+    summary = {"ok": ok, "problems": problems, **facts}
     if scored is not None:
         try:
-            summary["report"] = str(_report(run_dir, args, summary, *scored))
+            summary["report"] = str(_report(run_dir, args, summary, *scored, manifests))
         except Exception as exc:  # noqa: BLE001 - the scores stand without their report
-            summary["report_error"] = f"{type(exc).__name__}: {exc}"
+            summary["report_error"] = facts["report_error"] = f"{type(exc).__name__}: {exc}"
+            summary["ok"], summary["problems"] = judge()
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-    s = summary.get("scores", {})
     print("\n=== arena demo: results ===")
+    if summary["ok"]:
+        print(f"ok: {OK_TEXT}")
+    else:
+        print(f"NOT OK: {len(summary['problems'])} problem(s):")
+        for line in summary["problems"]:
+            print(f"  - {line}")
+    s = summary.get("scores", {})
     if s:
-        def f(key: str, fmt: str) -> str:
+        def f(key: str, fmt: str, unit: str = "") -> str:
             v = s.get(key)
-            return format(v, fmt) if isinstance(v, (int, float)) else "n/a"
+            return format(v, fmt) + unit if isinstance(v, (int, float)) else "n/a"
         print(f"precision {f('precision', '.3f')}  recall {f('recall', '.3f')}  MOTA {f('mota', '.3f')}  "
-              f"MAE {f('mae_cm', '.2f')} cm  heading MAE {f('heading_mae_deg', '.1f')}°  "
-              f"ID switches {s.get('id_switches')}")
+              f"IDF1 {f('idf1', '.3f')}  HOTA {f('hota', '.3f')}  MAE {f('mae_cm', '.2f', ' cm')}  "
+              f"heading MAE {f('heading_mae_deg', '.1f', '°')}  ID switches {s.get('id_switches')}  "
+              f"({s.get('n_frames', 0)} frames, {s.get('n_gt', 0)} robot positions)")
     else:
         print(f"no score: {summary.get('score_error', 'tracks or truth missing')}")
     if first_track_s is not None:
@@ -528,11 +595,19 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids) -> dict:
     if wins is not None:
         print(f"event windows: the edge published {wins['edge_published']} and dropped {wins['edge_dropped']}; "
               f"the tracker processed {wins['tracker_in']}, found {wins['tracker_missed']} missing and dropped "
-              f"{wins['tracker_queue_dropped']} from its queue")
+              f"{wins['tracker_queue_dropped']} from its queue"
+              + (f" ({sum(wins['during_missions'].values())} of these lost while the missions ran)"
+                 if "during_missions" in wins and _lost(wins) else ""))
     if "report" in summary:
         print(f"report: {summary['report']}  (scores, real time, missions, webcam ground truth, plots)")
     elif "report_error" in summary:
         print(f"no report: {summary['report_error']}")
-    print(f"run folder: {run_dir}  (tracks.csv, truth.csv, groundtruth.csv, telemetry/, events.raw, arena.mcap, logs/)")
-    print(f"watch it again: arena replay {run_dir} & arena view   (then open http://127.0.0.1:8080)")
+    print(f"run folder: {run_dir}  ({', '.join(run_files(run_dir)) or 'empty'})")
+    hint = replay_hint(run_dir, args.view_port)
+    if hint:
+        print(f"watch it again: {hint}\n  (then open http://127.0.0.1:{args.view_port}; the replay is its own "
+              "Zenoh router, so nothing else needs to run; Ctrl-C stops the viewer)")
+    else:
+        print("watch it again: not possible, the run left no arena.mcap")
     return summary
+

@@ -15,8 +15,14 @@ from pathlib import Path
 import numpy as np
 
 from groundtruth.metrics import Scores
-from groundtruth.report import (ROBOT_HEADERS, fmt, markdown_table, plot_errors, plot_trajectories, robot_rows,
+from groundtruth.report import (NA, ROBOT_HEADERS, fmt, markdown_table, plot_errors, plot_trajectories, robot_rows,
                                 summary_rows)
+
+
+#: what an ok run is (the verdict's checks, :mod:`demo.verdict`), as the results and report.md say it
+OK_TEXT = ("every service ran and stopped cleanly, every mission ran until the demo ended it (closed-loop "
+           "ones on their tracks), the simulator kept real time (worst lag at most 1 s), no event window was "
+           "lost while the missions ran, and the tracks were scored against the truth")
 
 
 def webcam_as_tracks(webcam: np.ndarray) -> np.ndarray:
@@ -79,21 +85,38 @@ def realtime_rows(summary: dict) -> list[tuple[str, str]]:
         rows.append(("event windows at the tracker",
                      f"{w['tracker_in']} processed, {w['tracker_missed']} missing on the way, "
                      f"{w['tracker_queue_dropped']} dropped from its queue"))
+        d = w.get("during_missions")
+        if d:
+            rows.append(("event windows lost while the missions ran",
+                         f"{d['edge_dropped']} dropped at the edge, {d['tracker_missed']} missing and "
+                         f"{d['tracker_queue_dropped']} dropped from its queue at the tracker"))
     return rows
 
 
 def write_demo_report(run_dir: str | Path, setup: str, summary: dict, scores: Scores, tracks: np.ndarray,
                       truth: np.ndarray, webcam_scores: Scores | None = None,
-                      manifests: list[dict] | None = None) -> Path:
+                      manifests: list[dict] | None = None, files: list[str] | None = None,
+                      replay: str | None = None) -> Path:
     """Write ``report.md`` (and ``report/trajectories.png``, ``report/errors.png``) into the run
-    folder; returns the path of ``report.md``. ``setup`` is one line on how the demo was run."""
+    folder; returns the path of ``report.md``. ``setup`` is one line on how the demo was run.
+    Its first lines say whether the run was ok and why not (``summary["ok"]``,
+    ``summary["problems"]``); ``files`` lists what the run folder holds (:func:`run_files`),
+    ``replay`` is the command that watches it again (:func:`replay_hint`)."""
     run_dir = Path(run_dir)
+    files = run_files(run_dir, also=("report.md", "report/")) if files is None else files
+    replay = replay_hint(run_dir) if replay is None else replay
     fig_dir = run_dir / "report"
     fig_dir.mkdir(parents=True, exist_ok=True)
     plot_trajectories(fig_dir / "trajectories.png", tracks, truth)
     plot_errors(fig_dir / "errors.png", scores)
     until = summary.get("scored_until_us")
-    md = [f"# arena demo: {run_dir.name}", "", setup, "",
+    problems = list(summary.get("problems") or [])
+    if summary.get("ok") and not problems:
+        verdict = [f"**OK**: {OK_TEXT}.", ""]
+    else:
+        verdict = [f"**NOT OK**: {len(problems) or 'unknown'} problem(s):", "",
+                   *[f"- {p}" for p in problems], ""]
+    md = [f"# arena demo: {run_dir.name}", "", *verdict, setup, "",
           "## Tracking", "",
           f"`tracks.csv` against the simulator's exact poses (`truth.csv`), gate {scores.gate_cm:g} cm, "
           "from each robot's first motion"
@@ -118,13 +141,12 @@ def write_demo_report(run_dir: str | Path, setup: str, summary: dict, scores: Sc
                "tracker against the exact poses: how far a lab without a simulator can trust its "
                "webcam scoring.", "",
                markdown_table(["precision", "recall", "MAE cm", "heading MAE deg", "frames"],
-                              [[fmt(s.precision), fmt(s.recall), fmt(s.mae_cm, "{:.2f}"),
-                                fmt(s.heading_mae_deg, "{:.2f}"), str(s.n_frames)]]), ""]
-    md += ["## Files", "",
-           "`events.raw` (RAW EVT 3.0), `tracks.csv`, `truth.csv`, `groundtruth.csv`, `telemetry/` (a CSV and "
-           "a JSON manifest per robot and mission), `arena.mcap` (every `arena/**` message; opens in Foxglove), "
-           "`summary.json` (these figures), `cam0.calib.json`, `logs/`. Replay: "
-           f"`arena replay {run_dir}` and `arena view`.", ""]
+                              [[fmt(s.precision, missing=NA), fmt(s.recall, missing=NA),
+                                fmt(s.mae_cm, "{:.2f}", NA), fmt(s.heading_mae_deg, "{:.2f}", NA),
+                                str(s.n_frames)]]), ""]
+    md += ["## Files", "", ", ".join(_file_item(f) for f in files) + ".", ""]
+    md += [f"Watch it again: `{replay}` (the replay is its own Zenoh router), then open the viewer's page."
+           if replay else "No recording (`arena.mcap`) to watch again.", ""]
     path = run_dir / "report.md"
     path.write_text("\n".join(md))
     return path
@@ -139,3 +161,58 @@ def read_manifests(telemetry_dir: str | Path) -> list[dict]:
         except (OSError, ValueError):
             continue
     return out
+
+
+#: what each file of a run folder is, for the report
+FILE_NOTES = {"events.raw": "RAW EVT 3.0", "telemetry/": "a CSV and a JSON manifest per robot and mission",
+              "arena.mcap": "every `arena/**` message; opens in Foxglove", "summary.json": "these figures",
+              "truth.csv": "the simulator's exact poses", "groundtruth.csv": "the webcam ground truth"}
+
+
+def _file_item(entry: str) -> str:
+    """``name (empty)`` or ``name`` of :func:`run_files` as Markdown, with what the file is."""
+    name, _, rest = entry.partition(" ")
+    notes = [n for n in (FILE_NOTES.get(name), rest.strip("()")) if n]
+    return f"`{name}`" + (f" ({'; '.join(notes)})" if notes else "")
+
+
+#: what a run folder may hold, in the order a reader wants them (folders end with ``/``)
+RUN_FILES = ("report.md", "report/", "summary.json", "tracks.csv", "truth.csv", "groundtruth.csv", "telemetry/",
+             "events.raw", "arena.mcap", "cam0.calib.json", "tracker-state.json", "logs/")
+
+
+def run_files(run_dir: str | Path, also: tuple[str, ...] = ()) -> list[str]:
+    """The run folder's files and folders that exist (folders with a ``/``, empty files marked), in
+    the order a reader wants them; ``also`` names ones about to be written."""
+    run_dir = Path(run_dir)
+    out = []
+    for name in RUN_FILES:
+        p = run_dir / name.rstrip("/")
+        if name in also:
+            out.append(name)
+        elif name.endswith("/") and p.is_dir():
+            out.append(name)
+        elif not name.endswith("/") and p.is_file():
+            out.append(name if p.stat().st_size else f"{name} (empty)")
+    return out
+
+
+def replay_hint(run_dir: str | Path, view_port: int = 8080, zenoh_port: int = 7447) -> str | None:
+    """One shell line that replays the run into a viewer once the demo has stopped (its router is
+    gone): the replay is the Zenoh router, listening on ``zenoh_port`` (``--mode router``), the
+    viewer connects to it as a client (the default endpoint when ``zenoh_port`` is 7447) and waits
+    for it, and the replay waits 3 s for the viewer before its first message. None when the run
+    has no recording."""
+    import shlex
+
+    run_dir = Path(run_dir)
+    mcap = run_dir / "arena.mcap"
+    if not mcap.is_file() or mcap.stat().st_size == 0:
+        return None
+    endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+    calib = run_dir / "cam0.calib.json"
+    view = ["arena", "view"] + (["--port", str(view_port)] if view_port != 8080 else []) \
+        + (["--calibration", str(calib)] if calib.is_file() else []) \
+        + (["--connect", endpoint] if zenoh_port != 7447 else [])
+    replay = ["arena", "replay", str(run_dir), "--mode", "router", "--listen", endpoint, "--start-delay", "3"]
+    return f"{shlex.join(replay)} & {shlex.join(view)}"

@@ -67,6 +67,9 @@ class Proc:
                                       errors="replace")
         self.ready = threading.Event()
         self.lines: list[str] = []
+        self.stop_requested = False  # set by :meth:`stop`
+        self.exited_early = False    # it had exited before :meth:`stop` was first called
+        self.killed = False          # :meth:`stop` had to SIGKILL it after the grace period
         if spec.ready is None and spec.ready_check is None:
             self.ready.set()
         self._reader = threading.Thread(target=self._read, name=f"log-{spec.name}", daemon=True)
@@ -105,15 +108,21 @@ class Proc:
         return self.popen.poll() is None
 
     def stop(self) -> int | None:
-        """SIGTERM, then SIGKILL after the grace period; returns the exit code."""
+        """SIGTERM, then SIGKILL after the grace period; returns the exit code. Records whether
+        the process had already exited (:attr:`exited_early`) or had to be killed (:attr:`killed`)."""
+        first = not self.stop_requested
+        self.stop_requested = True
         if self.popen.poll() is None:
             try:
                 self.popen.send_signal(signal.SIGTERM)
                 self.popen.wait(timeout=self.spec.stop_timeout_s)
             except subprocess.TimeoutExpired:
                 log.warning("%s did not stop within %.0f s: killing it", self.spec.name, self.spec.stop_timeout_s)
+                self.killed = True
                 self.popen.kill()
                 self.popen.wait(timeout=5)
+        elif first:
+            self.exited_early = True
         self._reader.join(timeout=2)
         self._log.close()
         return self.popen.returncode
@@ -138,6 +147,14 @@ class Supervisor:
     def dead(self) -> list[str]:
         """Names of children that have exited."""
         return [n for n, p in self.procs.items() if not p.alive()]
+
+    def killed(self) -> list[str]:
+        """Names of children that :meth:`stop_all` had to SIGKILL (they ignored SIGTERM)."""
+        return [n for n, p in self.procs.items() if p.killed]
+
+    def died(self) -> dict[str, int | None]:
+        """Children that exited by themselves, before they were asked to stop -> exit code."""
+        return {n: p.popen.returncode for n, p in self.procs.items() if p.exited_early}
 
     def stop_all(self, first: list[str] | tuple = ()) -> dict[str, int | None]:
         """Stop the children named in ``first`` in that order, then the rest in reverse start order."""

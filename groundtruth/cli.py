@@ -34,7 +34,9 @@ def register_eval(sub) -> None:
                "  arena eval --tracks tracks.csv --truth truth.csv\n"
                "  arena eval --tracks tracks.csv --truth truth.csv --gate-cm 5 --json scores.json\n"
                "  arena eval --tracks tracks.csv --truth webcam_gt.csv --report eval_report/\n"
-               "Exit code 0 when scored, 2 for unreadable input.")
+               "Exit code 0 when scored; 1 when there was no ground truth to score against (no frame\n"
+               "inside the truth's time span, or no robot that moved: MOTA, IDF1, HOTA are n/a); 2 for\n"
+               "unreadable input (including a truth file without rows).")
     p.add_argument("--tracks", required=True, metavar="CSV", help="tracker output (arena track --tracks-out)")
     p.add_argument("--truth", required=True, metavar="CSV", help="truth or ground-truth poses")
     p.add_argument("--gate-cm", type=float, default=10.0, help="match distance gate in cm (default 10)")
@@ -50,7 +52,7 @@ def register_eval(sub) -> None:
 def run_eval(args: argparse.Namespace) -> int:
     """Run ``arena eval``; returns the exit code."""
     from groundtruth.metrics import CsvFormatError, evaluate, read_tracks_csv, read_truth_csv
-    from groundtruth.report import format_scores, write_eval_report, write_json
+    from groundtruth.report import format_scores, no_ground_truth, write_eval_report, write_json
 
     if not args.gate_cm > 0:
         print(f"arena eval: --gate-cm must be positive, got {args.gate_cm}", file=sys.stderr)
@@ -77,6 +79,11 @@ def run_eval(args: argparse.Namespace) -> int:
     except OSError as exc:
         print(f"arena eval: cannot write output: {exc}", file=sys.stderr)
         return 2
+    why = no_ground_truth(scores)
+    if why:
+        print(f"arena eval: nothing measured: {why} (check that --truth covers the tracks' times; "
+              "--all-frames counts robots that never moved)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -160,6 +167,7 @@ def register_groundtruth(sub) -> None:
                "  arena groundtruth --video 0 --calibrate-out webcam_calib.json \\\n"
                "      --at 0=0.10,0.10 --at 1=1.73,0.10 --at 2=1.73,1.73 --at 3=0.10,1.73\n"
                "  arena groundtruth --lab deploy/lab.toml --csv gt.csv\n"
+               "--clock and --name not given come from the lab config's [services.groundtruth] table.\n"
                "Exit code 0 when the source ends or on Ctrl-C, 2 for bad input.")
     p.add_argument("--video", metavar="SRC", help="device index, video file or URL (default: lab [webcam] source)")
     p.add_argument("--calibration", metavar="JSON|URL",
@@ -172,13 +180,13 @@ def register_groundtruth(sub) -> None:
                    help="ArUco id of a robot, repeatable (unknown ids are ignored when any is given)")
     p.add_argument("--no-front-mark", action="store_true",
                    help="colour detector: shells have no front mark (heading from motion only)")
-    p.add_argument("--clock", choices=("host", "stream"), default="host",
+    p.add_argument("--clock", choices=("host", "stream"), default=None,
                    help="frame times of a live source: host clock at capture (default), or the\n"
                         "X-World-Time-us of each MJPEG part (arena sim: the simulator's clock, the\n"
                         "time base of its event camera and truth CSV)")
     p.add_argument("--csv", metavar="OUT", help="write detections to this CSV")
     p.add_argument("--annotate", metavar="OUT", help="annotated frames: a .avi/.mp4 video or a directory of PNGs")
-    p.add_argument("--name", default="webcam", help="service name in arena status (default webcam)")
+    p.add_argument("--name", default=None, help="service name in arena status (default webcam)")
     p.add_argument("--no-zenoh", action="store_true", help="do not publish (files only)")
     p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds")
@@ -214,7 +222,7 @@ def _parse_robot_colour(text: str):
 
 def run_groundtruth(args: argparse.Namespace) -> int:
     """Run ``arena groundtruth``; returns the exit code."""
-    from arena.config import ConfigError
+    from arena.config import ConfigError, apply_service_options
     from arena.session import load_lab_from_args
     from groundtruth.homography import CalibrationError
     from groundtruth.rgb import FrameSource, sample_hsv_range
@@ -228,6 +236,7 @@ def run_groundtruth(args: argparse.Namespace) -> int:
         lab = load_lab_from_args(args)
     except ConfigError as exc:
         return fail(str(exc))
+    apply_service_options(args, lab, "groundtruth")  # flags win, then [services.groundtruth], then the defaults
     cam = lab.webcam if lab is not None else None
     video = args.video if args.video is not None else (cam.source if cam else None)
     if video is None:

@@ -28,6 +28,9 @@ How a run is scored (``evaluate``):
    fragmentations = per robot, tracked segments - 1 (TrackEval's definition).
    ``MOTA = 1 - (FN + FP + IDSW) / n_gt``; ``MOTP`` is TrackEval's: mean similarity over matches,
    similarity ``s = max(0, 1 - d / gate)`` (1 = perfect); ``mae_cm`` is the mean distance.
+   With no ground truth (``n_gt = 0``: no truth rows, no frame inside their span, or no robot
+   that moved) MOTA, IDF1, HOTA and every other ratio over it are NaN (``None`` in
+   :meth:`Scores.to_dict`, "n/a" in reports): nothing was measured, so nothing is claimed.
 4. **IDF1** (Ristani et al. 2016): global one-to-one matching of robot and track ids maximising the
    number of frames in which the pair is within the gate.
 5. **HOTA** (Luiten et al. 2021): implemented here, following the paper and TrackEval's reference
@@ -80,18 +83,25 @@ def _read_csv(path: str | Path, required: Sequence[str], what: str) -> tuple[lis
     path = Path(path)
     if not path.is_file():
         raise CsvFormatError(f"{what} file not found: {path}")
-    with path.open(newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise CsvFormatError(f"{what} file {path} is empty (expected a header with {','.join(required)})")
-        header = [h.strip() for h in header]
-        missing = [c for c in required if c not in header]
-        if missing:
-            raise CsvFormatError(
-                f"{what} file {path}: header lacks column(s) {', '.join(missing)}; "
-                f"found {','.join(header)}")
-        rows = [r for r in reader if r and any(c.strip() for c in r)]
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise CsvFormatError(f"{what} file {path} is empty (expected a header with {','.join(required)})")
+            header = [h.strip() for h in header]
+            missing = [c for c in required if c not in header]
+            if missing:
+                raise CsvFormatError(
+                    f"{what} file {path}: header lacks column(s) {', '.join(missing)}; "
+                    f"found {','.join(header)}")
+            rows = [r for r in reader if r and any(c.strip() for c in r)]
+    except UnicodeDecodeError as exc:
+        bad = exc.object[exc.start:exc.start + 1].hex()
+        raise CsvFormatError(f"{what} file {path} is not a text CSV (byte 0x{bad} is not UTF-8): give the "
+                             f"CSV with the header {','.join(required)},...") from None
+    except csv.Error as exc:
+        raise CsvFormatError(f"{what} file {path} is not a readable CSV ({exc})") from None
     return header, rows
 
 
@@ -710,13 +720,19 @@ def scores_from_alignment(al: Alignment) -> Scores:
             heading_mae_deg=float(np.degrees(np.abs(m["yaw_err_rad"][ysel])).mean()) if ysel.any() else float("nan"),
             main_track=al.track_ids[t] if t is not None else "")
     n_det = cm.n_tp + cm.n_fp
+    # no ground truth scored (no truth rows, no frame inside their span, or no robot that moved):
+    # the ratios that divide by it are undefined, not perfect (MOTA 1 - 0/0, IDF1 0/0) nor 0 (HOTA)
+    na = float("nan")
+    has_gt = cm.n_gt > 0
     return Scores(
-        precision=cm.n_tp / n_det if n_det else float("nan"),
-        recall=cm.n_tp / cm.n_gt if cm.n_gt else float("nan"),
-        mae_cm=float(m["err_m"].mean() * 100) if len(m) else float("nan"),
-        heading_mae_deg=float(np.degrees(np.abs(m["yaw_err_rad"][yaw_ok])).mean()) if yaw_ok.any() else float("nan"),
-        mota=cm.mota, motp=cm.motp, id_switches=cm.id_switches, fragmentations=cm.fragmentations,
-        idf1=idm.idf1, idp=idm.idp, idr=idm.idr, hota=hm.hota, deta=hm.deta, assa=hm.assa,
+        precision=cm.n_tp / n_det if n_det else na,
+        recall=cm.n_tp / cm.n_gt if has_gt else na,
+        mae_cm=float(m["err_m"].mean() * 100) if len(m) else na,
+        heading_mae_deg=float(np.degrees(np.abs(m["yaw_err_rad"][yaw_ok])).mean()) if yaw_ok.any() else na,
+        mota=cm.mota if has_gt else na, motp=cm.motp, id_switches=cm.id_switches,
+        fragmentations=cm.fragmentations,
+        idf1=idm.idf1 if has_gt else na, idp=idm.idp if has_gt else na, idr=idm.idr,
+        hota=hm.hota if has_gt else na, deta=hm.deta if has_gt else na, assa=hm.assa if has_gt else na,
         n_frames=len(al.frames), n_gt=cm.n_gt, n_tp=cm.n_tp, n_fp=cm.n_fp, n_fn=cm.n_fn,
         n_heading=int(np.count_nonzero(yaw_ok)), gate_cm=al.gate_m * 100,
         n_robots=len(al.robots), n_tracks=len(al.track_ids),

@@ -35,11 +35,28 @@ SUMMARY_FIELDS = (
 )
 
 
-def fmt(value, spec: str = "{:.4f}") -> str:
-    """Format a number, showing '-' for NaN/None."""
+#: what a report shows for a metric that was not measured (NaN/None: e.g. MOTA without ground truth)
+NA = "n/a"
+
+
+def fmt(value, spec: str = "{:.4f}", missing: str = "-") -> str:
+    """Format a number, showing ``missing`` ('-', or :data:`NA` for metrics) for NaN/None."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "-"
+        return missing
     return spec.format(value)
+
+
+def no_ground_truth(s: Scores) -> str | None:
+    """Why the scores measure nothing (one line), or None when there was ground truth to score."""
+    if s.n_gt > 0:
+        return None
+    if s.n_robots == 0:
+        return "the truth has no rows: MOTA, IDF1, HOTA and MAE are n/a"
+    if s.n_frames == 0:
+        return (f"no frame inside the truth's time span ({s.n_frames_dropped} outside it): "
+                "MOTA, IDF1, HOTA and MAE are n/a")
+    return (f"no robot counted in any of the {s.n_frames} frames (none moved, or none inside its truth span): "
+            "MOTA, IDF1, HOTA and MAE are n/a")
 
 
 def summary_rows(s: Scores) -> list[tuple[str, str]]:
@@ -49,13 +66,14 @@ def summary_rows(s: Scores) -> list[tuple[str, str]]:
         if attr is None:
             rows.append((label, f"{s.n_gt} / {s.n_tp} / {s.n_fp} / {s.n_fn}"))
         else:
-            rows.append((label, fmt(getattr(s, attr), spec)))
+            rows.append((label, fmt(getattr(s, attr), spec, NA)))
     return rows
 
 
 def robot_rows(s: Scores) -> list[list[str]]:
     """One row of :data:`ROBOT_HEADERS` per robot."""
-    return [[name, str(r.n_gt), fmt(r.recall), fmt(r.mae_cm, "{:.2f}"), fmt(r.heading_mae_deg, "{:.2f}"),
+    return [[name, str(r.n_gt), fmt(r.recall, missing=NA), fmt(r.mae_cm, "{:.2f}", NA),
+             fmt(r.heading_mae_deg, "{:.2f}", NA),
              str(r.id_switches), str(r.fragmentations), r.main_track or "-"]
             for name, r in s.per_robot.items()]
 
@@ -85,6 +103,9 @@ def format_scores(s: Scores) -> str:
     head = (f"gate {s.gate_cm:g} cm, {s.n_robots} robot(s), {s.n_tracks} track id(s), "
             f"{s.n_frames} frame(s)")
     extra = []
+    why = no_ground_truth(s)
+    if why:
+        extra.append(f"no ground truth scored: {why}")
     if s.n_frames_dropped:
         extra.append(f"{s.n_frames_dropped} frame(s) outside the truth's time span dropped")
     if s.n_ignored:
@@ -174,9 +195,11 @@ def write_eval_report(out_dir: str | Path, s: Scores, tracks: np.ndarray, truth:
     plot_trajectories(out / "trajectories.png", tracks, truth)
     plot_errors(out / "errors.png", s)
     write_json(out / "scores.json", s, tracks=tracks_name, truth=truth_name)
+    why = no_ground_truth(s)
     md = [
         "# Tracking evaluation",
         "",
+        *([f"**Nothing measured**: {why}.", ""] if why else []),
         f"Tracks: `{tracks_name}`  ",
         f"Truth: `{truth_name}`  ",
         f"Gate {s.gate_cm:g} cm; a robot counts once it has moved; {s.n_frames} frames, "

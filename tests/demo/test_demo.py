@@ -30,6 +30,14 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
     run_dir = next(tmp_path.iterdir())
     summary = json.loads((run_dir / "summary.json").read_text())
 
+    # the verdict comes first: in summary.json and in the printed results
+    assert list(summary)[:2] == ["ok", "problems"], list(summary)
+    assert summary["ok"] is True and summary["problems"] == [], summary["problems"]
+    assert summary["killed"] == [] and summary["died"] == {}, (summary["killed"], summary["died"])
+    lines = out.stdout.splitlines()
+    head = lines.index("=== arena demo: results ===")
+    assert lines[head + 1].startswith("ok: every service ran and stopped cleanly"), lines[head:head + 3]
+
     # every process is gone, and each stopped cleanly (0, or the -15 of SIGTERM)
     assert set(summary["pids"]) >= {"router", "sim", "edge", "tracker", "groundtruth", "bridge", "scorer", "recorder"}
     assert not [n for n, pid in summary["pids"].items() if _alive(pid)]
@@ -81,6 +89,7 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
     w = summary["windows"]
     assert w["tracker_in"] == status[-1][1]["counters"]["windows_in"] and w["edge_published"] >= len(windows), w
     assert w["tracker_missed"] == status[-1][1]["counters"].get("windows_missed", 0), w
+    assert w["during_missions"] == {"edge_dropped": 0, "tracker_missed": 0, "tracker_queue_dropped": 0}, w
     lat = summary["latency"]
     assert lat["n"] > 1000 and 0 < lat["p50_ms"] <= lat["p99_ms"], lat
     assert "latency edge -> track: p50" in out.stdout and "event windows: the edge published" in out.stdout
@@ -132,6 +141,58 @@ def test_demo_runs_the_whole_lab_and_meets_the_targets(tmp_path):
         assert m["control"] == "closed" and m["fusion"]["tracks_used"] > 100, (manifest.name, m.get("fusion"))
         assert m["path_error_tracks"]["mean_m"] < 0.03, (manifest.name, m["path_error_tracks"])
 
+    # the run folder line lists only what is there, and the report the same files
+    folder = next(ln for ln in lines if ln.startswith(f"run folder: {run_dir}  ("))
+    listed = folder.split("  (", 1)[1].rstrip(")").split(", ")
+    assert {"report.md", "summary.json", "tracks.csv", "arena.mcap", "telemetry/", "logs/"} <= set(listed), listed
+    assert all((run_dir / name.rstrip("/")).exists() for name in listed), listed
+    assert "`arena.mcap` (every `arena/**` message" in report.split("## Files")[1]
+    # "watch it again" is a command that works as printed once the demo has stopped
+    from demo.report import replay_hint
+    hint = next(ln for ln in lines if ln.startswith("watch it again: "))
+    assert hint == f"watch it again: {replay_hint(run_dir)}", hint
+    _watch_again(run_dir)
+
+
+ROBOTS = ("black0", "yellow1", "red2", "blue3")
+
+
+def _watch_again(run_dir, timeout_s: float = 60.0) -> None:
+    """Run the printed replay + viewer line (on free ports: the default 7447 and 8080 may be in
+    use on a test machine) with no router running, and poll the viewer until it shows a track."""
+    import signal
+    import sys
+    import time
+    import urllib.request
+
+    from demo.report import replay_hint
+    from tests.conftest import free_port
+
+    zport, vport = free_port(), free_port()
+    env = {**os.environ, "PATH": f"{os.path.dirname(sys.executable)}{os.pathsep}{os.environ.get('PATH', '')}"}
+    proc = subprocess.Popen(["bash", "-c", replay_hint(run_dir, view_port=vport, zenoh_port=zport)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    state, deadline = {}, time.monotonic() + timeout_s
+    try:
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{vport}/state.json", timeout=2) as r:
+                    state = json.loads(r.read())
+                if any(t.get("robot") in ROBOTS for t in state.get("tracks", [])):
+                    break
+            except OSError:
+                pass
+            time.sleep(0.25)
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            log, _ = proc.communicate(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            log, _ = proc.communicate()
+    # the replayed tracks, named after the robots (the first ones of a run are still numbered)
+    assert any(t.get("robot") in ROBOTS for t in state.get("tracks", [])), (state, log)
+
 
 @pytest.mark.slow
 def test_ctrl_c_in_the_terminal_stops_the_robots_first_and_leaves_nothing_running(tmp_path):
@@ -161,6 +222,8 @@ def test_ctrl_c_in_the_terminal_stops_the_robots_first_and_leaves_nothing_runnin
     run_dir = next(tmp_path.iterdir())
     summary = json.loads((run_dir / "summary.json").read_text())
     assert not [n for n, pid in summary["pids"].items() if _alive(pid)]
+    assert summary["ok"] is False and summary["problems"][0] == "interrupted before the missions ended (Ctrl-C or SIGTERM)"
+    assert "NOT OK: " in out and "  - interrupted before the missions ended" in out
     # the demo stopped its children itself, in order (SIGTERM: 0 or -15), none died of the SIGINT
     assert all(code in (0, -15) for code in summary["exit_codes"].values()), summary["exit_codes"]
     # robots first: the bridge ended every mission itself, its links still up (the simulated

@@ -37,3 +37,72 @@ def test_realtime_rows_only_for_what_was_measured():
                                                                   "tracker_queue_dropped": 0}}))
     assert rows["first track after the command"] == "4.2 s"
     assert rows["event windows at the edge"] == "5 published, 1 dropped"
+
+
+def test_run_files_lists_only_what_exists(tmp_path):
+    from demo.report import run_files
+
+    (tmp_path / "tracks.csv").write_text("t_us,track_id,x_m,y_m\n")
+    (tmp_path / "truth.csv").write_text("")
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "arena.mcap").mkdir()      # a folder where a file belongs is not that file
+    assert run_files(tmp_path) == ["tracks.csv", "truth.csv (empty)", "logs/"]
+    assert run_files(tmp_path, also=("summary.json",)) == ["summary.json", "tracks.csv", "truth.csv (empty)",
+                                                            "logs/"]
+
+
+def test_replay_hint_needs_a_recording_and_makes_the_replay_the_router(tmp_path):
+    from demo.report import replay_hint
+
+    run = tmp_path / "my runs" / "demo-1"
+    run.mkdir(parents=True)
+    assert replay_hint(run) is None
+    (run / "arena.mcap").write_bytes(b"\x89MCAP0\r\n")
+    assert replay_hint(run) == (f"arena replay '{run}' --mode router --listen tcp/127.0.0.1:7447 --start-delay 3 "
+                                "& arena view")
+    (run / "cam0.calib.json").write_text("{}")
+    assert replay_hint(run, view_port=8099, zenoh_port=17447) == (
+        f"arena replay '{run}' --mode router --listen tcp/127.0.0.1:17447 --start-delay 3 & arena view "
+        f"--port 8099 --calibration '{run}/cam0.calib.json' --connect tcp/127.0.0.1:17447")
+
+
+def _scores_on(truth_rows: int):
+    from groundtruth.metrics import TRACK_DTYPE
+
+    truth = np.zeros(truth_rows, TRUTH_DTYPE)
+    truth["t_us"] = np.arange(truth_rows) * 10_000
+    truth["robot"], truth["x_m"], truth["y_m"], truth["vx_mps"] = "a", 0.5 + 0.001 * np.arange(truth_rows), 0.5, 0.1
+    tracks = np.zeros(20, TRACK_DTYPE)
+    tracks["t_us"] = np.arange(20) * 10_000
+    tracks["track_id"], tracks["state"], tracks["x_m"], tracks["y_m"] = "1", "confirmed", 0.5, 0.5
+    return evaluate(tracks, truth, gate_m=0.10), tracks, truth
+
+
+def test_the_reports_first_lines_say_why_the_run_is_not_ok_and_no_truth_shows_na(tmp_path):
+    from demo.report import write_demo_report
+
+    scores, tracks, truth = _scores_on(0)
+    summary = {"ok": False, "problems": ["bridge did not stop when asked and was killed; see logs/bridge.log",
+                                         "truth.csv has no rows in the scored span: nothing to score against"]}
+    path = write_demo_report(tmp_path, "1 robot.", summary, scores, tracks, truth, files=["tracks.csv", "logs/"],
+                             replay=None)
+    lines = path.read_text().splitlines()
+    assert lines[2:7] == ["**NOT OK**: 2 problem(s):", "", f"- {summary['problems'][0]}",
+                          f"- {summary['problems'][1]}", ""], lines[:8]
+    text = "\n".join(lines)
+    for metric in ("MOTA", "IDF1", "HOTA", "MAE (cm)"):
+        assert f"| {metric} | n/a |" in text, metric
+    files = text.split("## Files")[1].strip().splitlines()
+    assert files[0] == "`tracks.csv`, `logs/`."               # only what the run folder holds
+    assert files[2] == "No recording (`arena.mcap`) to watch again."
+
+
+def test_an_ok_report_says_so_first(tmp_path):
+    from demo.report import write_demo_report
+
+    scores, tracks, truth = _scores_on(20)
+    path = write_demo_report(tmp_path, "1 robot.", {"ok": True, "problems": []}, scores, tracks, truth,
+                             replay="arena replay R --mode router & arena view")
+    text = path.read_text()
+    assert text.splitlines()[2].startswith("**OK**: every service ran and stopped cleanly")
+    assert "| MOTA | 1.0000 |" in text and "Watch it again: `arena replay R --mode router & arena view`" in text

@@ -123,3 +123,32 @@ def test_webcam_ground_truth_format_is_accepted(tmp_path):
                  "0,zumo1,0.5,0.5,0.1,320,240,aruco\n41667,zumo1,0.51,0.5,,321,240,hsv\n")
     gt = read_truth_csv(p)
     assert len(gt) == 2 and np.isnan(gt["yaw_rad"][1]) and gt["x_m"][1] == pytest.approx(0.51)
+
+
+@pytest.mark.parametrize("which", ["tracks", "truth"])
+def test_eval_on_a_binary_file_is_one_clear_line(files, tmp_path, which):
+    tp, gp = files
+    raw = tmp_path / "events.csv"   # e.g. a recording given by mistake: a text header, then binary words
+    raw.write_bytes(b"% evt 3.0\n% format EVT3\n" + bytes(range(128, 256)) * 40)
+    r = arena("eval", "--tracks", raw if which == "tracks" else tp, "--truth", raw if which == "truth" else gp)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"{which} file {raw} is not a text CSV (byte 0x80 is not UTF-8)" in r.stderr, r.stderr
+
+
+def test_eval_with_no_ground_truth_in_the_tracks_span_prints_na_and_exits_1(files, tmp_path):
+    tp, gp = files
+    later = tmp_path / "later.csv"      # truth of another run: rows, but none while the tracks were made
+    gt = read_truth_csv(gp)
+    gt["t_us"] += 10_000_000
+    write_truth_csv(later, gt)
+    out_json = tmp_path / "s.json"
+    r = arena("eval", "--tracks", tp, "--truth", later, "--json", out_json)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "nothing measured: no frame inside the truth's time span" in r.stderr, r.stderr
+    for metric in ("MOTA", "IDF1", "HOTA", "MAE (cm)"):
+        line = next(ln for ln in r.stdout.splitlines() if ln.startswith(metric))
+        assert line.split()[-1] == "n/a", line
+    s = json.loads(out_json.read_text())["scores"]
+    assert s["n_gt"] == 0 and s["mota"] is None and s["idf1"] is None and s["hota"] is None, s

@@ -305,3 +305,22 @@ def test_hota_agrees_with_trackeval(seed):
     assert round(ours.hota, 4) == round(float(np.mean(res["HOTA"])), 4)
     assert round(ours.deta, 4) == round(float(np.mean(res["DetA"])), 4)
     assert round(ours.assa, 4) == round(float(np.mean(res["AssA"])), 4)
+
+
+@pytest.mark.parametrize("case", ["no truth rows", "no tracks either", "truth outside the tracks' span"])
+def test_no_ground_truth_measures_nothing(case):
+    # MOTA was 1 - 0/0 -> 1.0, IDF1 1.0 and HOTA 0.0 on empty truth: claims about nothing
+    tr = np.zeros(3, TRACK_DTYPE)
+    tr["t_us"], tr["track_id"], tr["x_m"], tr["y_m"], tr["state"] = [0, 10_000, 20_000], "1", 0.5, 0.5, "confirmed"
+    gt = np.zeros(2, TRUTH_DTYPE)
+    gt["t_us"], gt["robot"], gt["x_m"], gt["y_m"] = [5_000_000, 5_010_000], "a", [0.5, 0.6], 0.5
+    if case != "truth outside the tracks' span":
+        gt = gt[:0]
+    if case == "no tracks either":
+        tr = tr[:0]
+    s = evaluate(tr, gt)
+    assert s.n_gt == 0
+    for name in ("mota", "idf1", "idp", "hota", "deta", "assa", "recall", "mae_cm", "heading_mae_deg"):
+        assert math.isnan(getattr(s, name)), name
+    d = s.to_dict()
+    assert (d["mota"], d["idf1"], d["hota"], d["mae_cm"]) == (None, None, None, None)

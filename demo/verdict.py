@@ -1,0 +1,132 @@
+"""Whether an ``arena demo`` run went as claimed: ``ok``, and the reasons when it did not.
+
+Pure: it judges facts the launcher collected (exit codes and kills from the supervisor, the
+bridge's mission manifests, the simulator's real-time line, the event-window counters from the
+recording, the scores) and does no I/O. The demo prints the reasons first, writes them first in
+``summary.json`` (``"ok"``, ``"problems"``) and ``report.md``, and exits 1 when there is any.
+
+A run is ok only when everything below was seen to hold; a fact that is missing (no real-time
+line, no window counters, no scores) is a problem too, since the run cannot show it held.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+#: the simulator may lag the wall clock by at most this much (s) before the run is not ok
+MAX_SIM_LAG_S = 1.0
+#: exit codes of a service stopped by the demo: its own clean exit, or SIGTERM's default action
+CLEAN_EXIT_CODES = (0, -15)
+#: how a mission may end in a good run: all its laps, or the demo stopping the bridge at the end
+GOOD_MISSION_ENDS = ("finished", "interrupted: bridge shut down")
+
+
+def verdict(*, exit_codes: Mapping[str, int | None],
+            killed: Sequence[str] = (),
+            died: Mapping[str, int | None] | None = None,
+            restarts: Mapping[str, int] | None = None,
+            failure: str | None = None,
+            interrupted: bool = False,
+            manifests: Sequence[Mapping] | None = None,
+            robots: int | None = None,
+            sim_realtime: Mapping | None = None,
+            windows: Mapping | None = None,
+            truth_rows: int | None = None,
+            scores: Mapping | None = None,
+            score_error: str | None = None,
+            report_error: str | None = None,
+            max_lag_s: float = MAX_SIM_LAG_S) -> tuple[bool, list[str]]:
+    """``(ok, problems)`` of a demo run; ``ok`` is True exactly when ``problems`` is empty.
+
+    Args:
+        exit_codes: service name -> exit code as the supervisor stopped it (None: still running).
+        killed: services the supervisor had to SIGKILL after their stop grace period.
+        died: services that exited before the demo stopped them -> their exit code.
+        restarts: service -> times restarted (the demo's supervisor never restarts; kept for
+            launchers that do).
+        failure: the launcher's own error (a service not ready or gone, a mission refused).
+        interrupted: the run was stopped by Ctrl-C / SIGTERM before its missions ended.
+        manifests: the bridge's mission manifests (``telemetry/*.json``).
+        robots: robots the demo sent a mission to (each must have a manifest).
+        sim_realtime: the simulator's ``{"factor", "simulated_s", "worst_lag_s", "worst_lag_at_s"}``.
+        windows: event-window counters (``edge_published``, ``edge_dropped``, ``tracker_in``,
+            ``tracker_missed``, ``tracker_queue_dropped``) over the run; when it holds
+            ``during_missions`` (the three loss counters since the missions started), only those
+            count: windows lost while the services start (a starved edge at start-up) reach no
+            scored frame, and the printed counters still show them.
+        truth_rows: rows of the simulator's truth in the scored span.
+        scores: :meth:`groundtruth.metrics.Scores.to_dict` of the tracks against the truth.
+        score_error, report_error: why scoring or the report failed.
+        max_lag_s: the simulator's worst lag allowed, s.
+    """
+    p: list[str] = []
+    if interrupted:
+        p.append("interrupted before the missions ended (Ctrl-C or SIGTERM)")
+    if failure:
+        p.append(f"the run failed: {(failure.strip().splitlines() or [failure])[0]}")
+    died = dict(died or {})
+    killed = list(killed)
+    for name, code in died.items():
+        p.append(f"{name} died during the run (exit code {code}); see logs/{name}.log")
+    for name in killed:
+        p.append(f"{name} did not stop when asked and was killed; see logs/{name}.log")
+    for name, code in exit_codes.items():
+        if name in died or name in killed:
+            continue
+        if code is None:
+            p.append(f"{name} was still running after the demo stopped it")
+        elif code not in CLEAN_EXIT_CODES:
+            p.append(f"{name} exited with code {code} when stopped; see logs/{name}.log")
+    for name, n in (restarts or {}).items():
+        if n:
+            p.append(f"{name} was restarted {n} time(s) during the run; see logs/{name}.log")
+    p += _missions(manifests, robots)
+    if sim_realtime is None:
+        p.append("the simulator's real-time line is missing from logs/sim.log: its lag is unknown")
+    elif sim_realtime.get("worst_lag_s", 0) > max_lag_s:
+        p.append(f"the simulator fell {sim_realtime['worst_lag_s']:.2f} s behind the wall clock (at t = "
+                 f"{sim_realtime.get('worst_lag_at_s', float('nan')):.1f} s; over {max_lag_s:g} s): the CPU "
+                 "was short, so the timings are not the lab's")
+    if windows is None:
+        p.append("no edge and tracker status in arena.mcap: whether event windows were lost is unknown")
+    else:
+        during = windows.get("during_missions")
+        counts = during if isinstance(during, Mapping) else windows
+        lost = {k: int(counts.get(k) or 0) for k in ("edge_dropped", "tracker_missed", "tracker_queue_dropped")}
+        if sum(lost.values()):
+            p.append(f"{sum(lost.values())} event window(s) lost"
+                     + (" while the missions ran" if counts is during else "")
+                     + f": the edge dropped {lost['edge_dropped']}, the tracker found {lost['tracker_missed']} "
+                     f"missing and dropped {lost['tracker_queue_dropped']} from its queue")
+    if truth_rows == 0:
+        p.append("truth.csv has no rows in the scored span: nothing to score against (MOTA, IDF1, HOTA n/a)")
+    elif scores is None:
+        p.append(f"not scored: {score_error or 'tracks.csv or truth.csv is missing'}")
+    elif not scores.get("n_gt"):
+        p.append(f"no ground truth in the {scores.get('n_frames', 0)} scored frame(s): MOTA, IDF1, HOTA n/a")
+    if report_error:
+        p.append(f"no report.md: {report_error}")
+    return not p, p
+
+
+def _missions(manifests: Sequence[Mapping] | None, robots: int | None) -> list[str]:
+    p: list[str] = []
+    manifests = list(manifests or [])
+    if not manifests:
+        if robots != 0:
+            p.append("no mission manifest in telemetry/: no mission ran")
+        return p
+    if robots is not None and len({m.get("robot") for m in manifests}) < robots:
+        p.append(f"only {len({m.get('robot') for m in manifests})} of {robots} robots logged a mission")
+    for m in manifests:
+        who = f"{m.get('robot', '?')}'s " + (f"{m['pattern']} mission" if m.get("pattern") else "mission")
+        status = str(m.get("status", "?"))
+        if status == "running":
+            p.append(f"{who} never ended in its log (the bridge died or was killed)")
+        elif status not in GOOD_MISSION_ENDS:
+            p.append(f"{who} ended: {status}")
+        fusion = m.get("fusion")
+        if m.get("control") == "closed" and isinstance(fusion, Mapping) and not fusion.get("tracks_used"):
+            p.append(f"{who} was closed-loop but used no tracks (fusion.tracks_used = 0): it drove on "
+                     "odometry alone")
+    return p
