@@ -16,7 +16,8 @@ Tracking parts run both trackers (``idtrack``: the paper's Algorithm 1 with its 
 :func:`groundtruth.metrics.evaluate` against the simulator's exact truth (10 cm gate, robots
 counted from their first motion).
 
-This module is a launcher (like the demo): it imports the simulator and the tracker's public API.
+A launcher, like the demo (and so in its package): it imports the simulator, the tracker's public
+API and the scoring of ``groundtruth``; no service imports it.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import numpy as np
 from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, a_ratio, evaluate, n_avg_clusters
 from groundtruth.report import fmt, markdown_table
 
-log = logging.getLogger("groundtruth.experiment")
+log = logging.getLogger("arena.experiment")
 
 PARTS = ("minpts", "ta", "table", "lighting")
 TRACKERS = ("idtrack", "fleet")
