@@ -198,11 +198,13 @@ def run(args) -> int:
         early[0].wait_ready()
         with open_session(ZenohSettings(mode="client", connect=[endpoint]), wait_s=10) as session:
             alive = _AliveSet(session)
+            early[1].wait_ready()
+            # the recorder starts once the simulator has written the camera's calibration, which
+            # places the event image under the robots in Foxglove's 3D panel
             early.append(sup.start(ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name",
-                                                                   "demo", *z),
+                                                                   "demo", "--calibration", str(calib), *z),
                                             ready_check=alive.has("recorder", "demo"), ready_timeout_s=90,
                                             nice=args.observer_nice), wait=False))
-            early[1].wait_ready()
             specs = [ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
                               ready_check=alive.has("edge", "cam0"), ready_timeout_s=90)]
             specs.append(ProcSpec("tracker", python_cmd("track", "--camera", "cam0", "--calibration", str(calib),

@@ -25,23 +25,33 @@ def register_record(sub) -> None:
         formatter_class=_formatter,
         description="Subscribe to arena messages and write them into an MCAP file: one channel per key,\n"
                     "tracks/telemetry/ground truth/status as JSON with a JSON schema (Foxglove shows\n"
-                    "them), event windows as their msgpack bytes (lossless). Log time = receive time,\n"
-                    "publish time = the sender's time when the message has one. Stops at the end of\n"
-                    "--duration, on Ctrl-C or SIGTERM, and always finishes the file. Commands to robots\n"
-                    "are Zenoh queries, not publications: they are not recorded.\n"
+                    "them), event windows as their msgpack bytes (lossless). Also Foxglove's own schemas\n"
+                    "(foxglove/... topics: robot poses, transforms, boxes with heading arrows, the arena\n"
+                    "outline, the event image at --image-hz) for its 3D panel; `arena replay` skips them\n"
+                    "(docs/foxglove.md). Log time = receive time, publish time = the sender's time when\n"
+                    "the message has one. Stops at the end of --duration, on Ctrl-C or SIGTERM, and\n"
+                    "always finishes the file. Commands to robots are Zenoh queries, not publications:\n"
+                    "they are not recorded.\n"
                     "Exit status: 0, or 1 when samples were dropped (write queue full), 2 on errors.",
         epilog="Examples:\n"
                "  arena record run.mcap                                # everything, until Ctrl-C\n"
                "  arena record run.mcap --duration 30\n"
                "  arena record tracks.mcap --keys 'arena/robots/*' --keys 'arena/groundtruth/*'\n"
-               "  arena replay run.mcap                                # publish it again")
+               "  arena record run.mcap --calibration cam0.calib.json  # event image placed in Foxglove's 3D view\n"
+               "  arena replay run.mcap                                # publish it again\n"
+               "Options not given as flags come from the lab config's [services.recorder] table (keys,\n"
+               "queue), else the defaults.")
     p.add_argument("out", metavar="OUT.mcap", help="MCAP file to write (overwritten)")
     p.add_argument("--keys", action="append", default=None, metavar="KEYEXPR",
                    help=f"key expression to record, repeatable (default {EVERYTHING})")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds (default: until stopped)")
     p.add_argument("--name", default=None, help="service name in arena status (default recorder-<pid>)")
-    p.add_argument("--queue", type=int, default=10_000,
-                   help="samples buffered before the file writer; beyond it samples are dropped and counted")
+    p.add_argument("--queue", type=int, default=None,
+                   help="samples buffered before the file writer; beyond it samples are dropped and counted "
+                        "(default 10000)")
+    _add_foxglove_arguments(p)
+    p.add_argument("--no-foxglove", action="store_true",
+                   help="do not write the Foxglove views (foxglove/... topics), only the arena messages")
     add_zenoh_arguments(p)
     p.set_defaults(func=run_record)
 
@@ -84,11 +94,19 @@ def _name(value: str | None, command: str, prefix: str) -> str | None:
 
 def run_record(args) -> int:
     """Run ``arena record``; returns the exit code."""
+    from arena.config import ConfigError, apply_service_options
+    from arena.session import load_lab_from_args
     from recorder.service import record
 
     name = _name(args.name, "record", "recorder")
     if name is None:
         return 2
+    try:
+        lab = load_lab_from_args(args)
+    except ConfigError as exc:
+        print(f"arena record: {exc}", file=sys.stderr)
+        return 2
+    apply_service_options(args, lab, "recorder")  # flags win, then [services.recorder], then the defaults
     if args.duration is not None and args.duration <= 0:
         print("arena record: --duration must be > 0 seconds", file=sys.stderr)
         return 2
@@ -99,14 +117,19 @@ def run_record(args) -> int:
     if not os.path.isdir(os.path.dirname(out)):
         print(f"arena record: folder {os.path.dirname(out)} does not exist", file=sys.stderr)
         return 2
+    foxglove = None
+    if not args.no_foxglove:
+        foxglove = _foxglove_converter(args, lab, "record")
+        if foxglove is None:
+            return 2
     keys = args.keys or [EVERYTHING]
     stop = stop_on_signals()
     meta = {"host": socket.gethostname(), "keys": ",".join(keys), "started_ns": str(time.time_ns()),
             "command": " ".join(sys.argv)}
     try:
-        with open_session(args, wait_s=None) as session:
+        with open_session(args, lab=lab, wait_s=None) as session:
             res = record(session, out, keys, stop, duration_s=args.duration, name=name, queue_size=args.queue,
-                         metadata=meta,
+                         metadata=meta, foxglove=foxglove,
                          on_ready=lambda: print(f"recording {', '.join(keys)} to {out} (Ctrl-C to stop)",
                                                 flush=True))
     except SessionError as exc:
@@ -118,7 +141,8 @@ def run_record(args) -> int:
     except Exception as exc:  # zenoh.ZError for an invalid key expression
         print(f"arena record: {exc}", file=sys.stderr)
         return 2
-    print(f"recorded {res.messages} messages ({res.bytes / 1e6:.1f} MB of payload) in {res.seconds:.1f} s "
+    views = f" (+{res.derived} Foxglove messages)" if foxglove is not None else ""
+    print(f"recorded {res.messages} messages{views} ({res.bytes / 1e6:.1f} MB of payload) in {res.seconds:.1f} s "
           f"to {out}; dropped {res.dropped}", flush=True)
     return 0 if res.dropped == 0 else 1
 
@@ -158,4 +182,132 @@ def run_replay(args) -> int:
         return 2
     print(f"replayed {res.messages} messages in {res.seconds:.1f} s "
           f"({res.passes} pass{'es' if res.passes != 1 else ''}, max lag {res.max_lag_s * 1e3:.0f} ms)", flush=True)
+    return 0
+
+
+# ----------------------------------------------------------------------------- Foxglove views
+
+
+def _add_foxglove_arguments(p) -> None:
+    p.add_argument("--calibration", metavar="JSON", default=None,
+                   help="camera calibration (pixel <-> arena m, as `arena view` takes) to place the event "
+                        "image in Foxglove's 3D view (topic foxglove/events/<camera>/points); overrides the "
+                        "lab config's cameras' calibrations. Without one the image is shown in its own frame only")
+    p.add_argument("--image-hz", type=float, default=4.0,
+                   help="event images a second (sensor time) for Foxglove (default 4)")
+    p.add_argument("--accumulate-ms", type=float, default=100.0,
+                   help="sensor time one event image shows (default 100 ms)")
+
+
+def _read_json(path: str, what: str) -> dict:
+    import json
+    from pathlib import Path
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{what}: cannot read calibration {path}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{what}: {path} is not a calibration JSON object")
+    return data
+
+
+def _foxglove_converter(args, lab, command: str):
+    """The :class:`~recorder.foxglove_views.FoxgloveConverter` for ``args`` and the lab config (arena
+    size, robot sizes and colours, camera calibrations); None after printing why it cannot be made."""
+    try:
+        from recorder.foxglove_views import FoxgloveConverter, RobotShape, pixel_to_arena_homography
+    except ImportError as exc:
+        print(f"arena {command}: the Foxglove views need {exc.name or 'a missing package'} "
+              f"(pip install foxglove-schemas-protobuf){'; or pass --no-foxglove' if command == 'record' else ''}",
+              file=sys.stderr)
+        return None
+    if not args.image_hz > 0 or not args.accumulate_ms > 0:
+        print(f"arena {command}: --image-hz and --accumulate-ms must be > 0", file=sys.stderr)
+        return None
+    try:
+        homographies = {}
+        if args.calibration:
+            homographies["*"] = pixel_to_arena_homography(_read_json(args.calibration, "--calibration"))
+        elif lab is not None:
+            for cam in lab.cameras:
+                calib = cam.calibration
+                if calib is None and cam.calibration_file:
+                    calib = _read_json(cam.calibration_file, f"camera {cam.name}")
+                if calib is not None:
+                    homographies[cam.name] = pixel_to_arena_homography(calib)
+    except ValueError as exc:
+        print(f"arena {command}: {exc}", file=sys.stderr)
+        return None
+    robots = {r.name: RobotShape(r.length_m, r.width_m, color_rgb=tuple(r.color_rgb))
+              for r in (lab.robots if lab is not None else [])}
+    return FoxgloveConverter(arena_size_m=lab.arena.size_m if lab is not None else (1.83, 1.83), robots=robots,
+                             image_period_us=max(1, int(1e6 / args.image_hz)),
+                             accumulate_us=max(1, int(args.accumulate_ms * 1000)), pixel_to_arena=homographies)
+
+
+def register_foxglove(sub) -> None:
+    """Add ``arena foxglove`` to the ``arena`` subparsers."""
+    p = sub.add_parser(
+        "foxglove", help="serve the arena live to Foxglove (WebSocket): robots in 3D over the event image",
+        formatter_class=_formatter,
+        description="Subscribe to the tracks and event windows and serve them over Foxglove's WebSocket\n"
+                    "protocol (the official foxglove-sdk), as the same foxglove/... topics `arena record`\n"
+                    "writes: robot poses, transforms, boxes with heading arrows and labels, the arena\n"
+                    "outline, the accumulated event image. In Foxglove: Open connection -> Foxglove\n"
+                    "WebSocket -> ws://HOST:PORT. Works the same for a live lab and for `arena replay`.\n"
+                    "Needs the 'foxglove' extra (pip install foxglove-sdk). Loopback only by default.",
+        epilog="Examples:\n"
+               "  arena foxglove                                      # then connect to ws://127.0.0.1:8765\n"
+               "  arena foxglove --calibration runs/demo-x/cam0.calib.json\n"
+               "  arena foxglove --port 0                             # any free port (printed)\n"
+               "  arena foxglove --host 0.0.0.0                       # reachable from other hosts (no auth!)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8765, help="TCP port (default 8765, Foxglove's; 0 = any free port)")
+    _add_foxglove_arguments(p)
+    p.add_argument("--name", default=None, help="service name in arena status (default foxglove-<pid>)")
+    add_zenoh_arguments(p)
+    p.set_defaults(func=run_foxglove)
+
+
+def run_foxglove(args) -> int:
+    """Run ``arena foxglove``; returns the exit code."""
+    from arena.config import ConfigError
+    from arena.session import load_lab_from_args
+
+    name = _name(args.name, "foxglove", "foxglove")
+    if name is None:
+        return 2
+    if not 0 <= args.port <= 65535:
+        print(f"arena foxglove: --port {args.port} is not a TCP port", file=sys.stderr)
+        return 2
+    try:
+        lab = load_lab_from_args(args)
+    except ConfigError as exc:
+        print(f"arena foxglove: {exc}", file=sys.stderr)
+        return 2
+    converter = _foxglove_converter(args, lab, "foxglove")
+    if converter is None:
+        return 2
+    try:
+        from recorder.foxglove_live import FoxgloveServerError, LiveServer, serve
+    except ImportError as exc:
+        print(f"arena foxglove: {exc}", file=sys.stderr)
+        return 2
+    stop = stop_on_signals()
+    try:
+        live = LiveServer(args.host, args.port, name=f"arena {name}")  # before Zenoh: a busy port fails at once
+    except FoxgloveServerError as exc:
+        print(f"arena foxglove: {exc}", file=sys.stderr)
+        return 2
+    try:
+        with live, open_session(args, lab=lab, wait_s=None) as session:
+            res = serve(session, converter, live, stop, name=name,
+                        on_ready=lambda url: print(f"foxglove server on {url} (Ctrl-C to stop)", flush=True))
+    except KeyboardInterrupt:
+        return 0
+    except SessionError as exc:
+        print(f"arena foxglove: {exc}", file=sys.stderr)
+        return exc.exit_code
+    print(f"served {res.messages} Foxglove messages from {res.samples} samples", flush=True)
     return 0

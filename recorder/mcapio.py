@@ -10,7 +10,11 @@ Layout (profile ``arena``; library ``arena-recorder``):
   (``arena.Track``, ``arena.Telemetry``, ...), so Foxglove Studio shows the fields;
 * log time = receive time (host wall clock, ns); publish time = the sender's own time when the
   message carries one (``publish_ns``, ``tracker_publish_ns``, ``host_time_ns``, ``time_ns``),
-  else the receive time; sequence = per-channel message number from 0.
+  else the receive time; sequence = per-channel message number from 0;
+* **derived Foxglove channels** (:mod:`recorder.foxglove_views`, topics ``foxglove/...``): Foxglove's
+  well-known schemas (``foxglove.PoseInFrame``, ...) as protobuf, each channel with the metadata
+  ``derived_from`` = ``arena``. They are views of the arena channels, not samples anybody
+  published: :func:`read_run` (and so ``arena replay``) skips them.
 
 **Lossless replay.** A JSON record is written only when converting its JSON back to msgpack gives
 the published bytes again (``msgpack.packb(json.loads(text)) == payload``, which holds for every
@@ -45,6 +49,8 @@ PROFILE = "arena"
 LIBRARY = "arena-recorder"
 EVENT_SCHEMA = "arena.EventWindow"
 RAW_SCHEMA = "arena.Raw"
+#: metadata key of the channels derived from the arena ones (skipped by :func:`read_run`)
+DERIVED_KEY = "derived_from"
 
 # Fields that carry the sender's own wall-clock time (ns) per message kind.
 _PUBLISH_FIELDS = {"event_window": "publish_ns", "track": "tracker_publish_ns",
@@ -112,8 +118,9 @@ class RunWriter:
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
         self._seq: dict[int, int] = {}
-        self.messages = 0
+        self.messages = 0   # arena samples
         self.bytes = 0
+        self.derived = 0    # derived (Foxglove) messages
         self._closed = False
 
     def _schema_id(self, kind: str) -> int:
@@ -141,6 +148,24 @@ class RunWriter:
         self._writer.add_message(ch, log_time=log_time_ns, data=data, publish_time=pub, sequence=seq)
         self.messages += 1
         self.bytes += len(payload)
+
+    def add_derived(self, topic: str, schema_name: str, schema_data: bytes, data: bytes, log_time_ns: int,
+                    publish_time_ns: int, schema_encoding: str = "protobuf",
+                    message_encoding: str = "protobuf") -> None:
+        """Record one message derived from the arena samples (a Foxglove view) on its own channel
+        ``topic``; ``schema_data`` is used the first time ``schema_name`` is seen."""
+        sid = self._schemas.get("\0" + schema_name)
+        if sid is None:
+            sid = self._schemas["\0" + schema_name] = self._writer.register_schema(schema_name, schema_encoding,
+                                                                                   schema_data)
+        ch = self._channels.get((topic, "\0" + schema_name))
+        if ch is None:
+            ch = self._channels[(topic, "\0" + schema_name)] = self._writer.register_channel(
+                topic, message_encoding, sid, metadata={DERIVED_KEY: "arena"})
+        seq = self._seq.get(ch, 0)
+        self._seq[ch] = seq + 1
+        self._writer.add_message(ch, log_time=log_time_ns, data=data, publish_time=publish_time_ns, sequence=seq)
+        self.derived += 1
 
     def close(self) -> None:
         """Write the summary and indexes and close the file (idempotent)."""
@@ -199,7 +224,8 @@ def read_run(path: str | os.PathLike, keys: Iterable[str] | None = None) -> Iter
     is log-time order unless the host clock stepped back), with their payloads as published.
 
     ``path``: an ``.mcap`` file or a run folder holding one; ``keys``: Zenoh key expressions to keep
-    (default: all). Raises :class:`RunFileError` for a missing or unreadable file.
+    (default: all). Derived channels (the Foxglove views, metadata ``derived_from``) are skipped:
+    only what was published on Zenoh comes back. Raises :class:`RunFileError` for a missing or unreadable file.
     """
     f = find_run_file(path)
     match = _matcher(keys)
@@ -209,7 +235,7 @@ def read_run(path: str | os.PathLike, keys: Iterable[str] | None = None) -> Iter
         # still read up to its last complete chunk
         try:
             for _schema, channel, message in NonSeekingReader(stream).iter_messages(log_time_order=False):
-                if not match(channel.topic):
+                if DERIVED_KEY in channel.metadata or not match(channel.topic):
                     continue
                 data = message.data
                 if channel.message_encoding == "json":

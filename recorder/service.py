@@ -4,6 +4,10 @@ Recording: one Zenoh subscriber on the key expressions; its callback only timest
 puts it in a bounded queue (a full queue drops the sample and counts it in ``dropped``), one
 writer thread empties the queue every 50 ms into :class:`~recorder.mcapio.RunWriter`. Stopping (duration over,
 SIGTERM, Ctrl-C) undeclares the subscriber, drains the queue and finishes the MCAP file.
+
+With a :class:`~recorder.foxglove_views.FoxgloveConverter`, the writer thread also writes the Foxglove
+views of each sample (poses, transforms, scene, event images) after the sample itself: the Zenoh
+callback stays as cheap as before, and a sample is on disk before its views are made.
 """
 
 from __future__ import annotations
@@ -41,25 +45,34 @@ def wait_stop(stop: threading.Event, timeout_s: float | None = None, tick_s: flo
 
 @dataclass
 class RecordResult:
-    """What one recording wrote: messages, payload bytes, samples dropped, seconds recorded."""
+    """What one recording wrote: messages, payload bytes, samples dropped, seconds recorded, and
+    the Foxglove messages derived from them."""
 
     path: Path
     messages: int
     bytes: int
     dropped: int
     seconds: float
+    derived: int = 0
 
 
 def record(session: zenoh.Session, path: str | Path, keys: Iterable[str], stop: threading.Event,
            duration_s: float | None = None, name: str = "recorder", queue_size: int = 10_000,
-           on_ready: Callable[[], None] | None = None, metadata: dict[str, str] | None = None) -> RecordResult:
+           on_ready: Callable[[], None] | None = None, metadata: dict[str, str] | None = None,
+           foxglove=None) -> RecordResult:
     """Record every sample on ``keys`` into the MCAP file ``path`` until ``stop`` is set or
     ``duration_s`` seconds have passed; always finishes the file. Publishes status and liveliness
-    as ``recorder/<name>`` (counters ``messages``, ``bytes``, ``dropped``; gauge ``queue``)."""
+    as ``recorder/<name>`` (counters ``messages``, ``bytes``, ``dropped``, ``foxglove``; gauges
+    ``queue``, ``foxglove_rejected``).
+
+    ``foxglove``: a :class:`~recorder.foxglove_views.FoxgloveConverter` whose messages are written too
+    (None: only the arena samples)."""
     # The Zenoh callback appends to a deque and the writer drains it every 50 ms: a
     # queue.Queue woke the writer thread for each of the ~1 000 samples a second of a demo.
     pending: deque = deque()
     closing = threading.Event()
+    if foxglove is not None:
+        from recorder.foxglove_views import schema_data
     t0 = time.monotonic()
     with Service(session, "recorder", name) as svc, RunWriter(path, metadata=metadata) as writer:
         def on_sample(sample: zenoh.Sample) -> None:
@@ -84,8 +97,27 @@ def record(session: zenoh.Session, path: str | Path, keys: Iterable[str], stop: 
                     continue
                 svc.count("messages")
                 svc.count("bytes", len(payload))
+                if foxglove is not None:
+                    write_views(key, payload, log_ns)
 
-        svc.on_tick(lambda s: s.gauge("queue", len(pending)))
+        def write_views(key: str, payload: bytes, log_ns: int) -> None:
+            rejected = foxglove.rejected
+            try:
+                for m in foxglove.convert(key, payload, log_ns):
+                    writer.add_derived(m.topic, m.schema, schema_data(m.schema), m.data, m.log_time_ns,
+                                       m.publish_time_ns)
+                    svc.count("foxglove")
+            except Exception as exc:  # noqa: BLE001 - a view that fails must not end the recording
+                svc.error(f"cannot convert a sample on {key} for Foxglove: {exc}")
+            if foxglove.rejected > rejected:  # recorded as received, but not shown in Foxglove
+                svc.error(f"no Foxglove view of a bad message: {foxglove.last_error}")
+
+        def on_tick(s) -> None:
+            s.gauge("queue", len(pending))
+            if foxglove is not None:
+                s.gauge("foxglove_rejected", foxglove.rejected)
+
+        svc.on_tick(on_tick)
         thread = threading.Thread(target=write_loop, name="mcap-writer", daemon=True)
         thread.start()
         subs = [session.declare_subscriber(k, on_sample) for k in keys]
@@ -101,7 +133,7 @@ def record(session: zenoh.Session, path: str | Path, keys: Iterable[str], stop: 
             closing.set()      # the writer drains what is left, then returns
             thread.join()
         return RecordResult(Path(path), writer.messages, writer.bytes, int(svc.counter("dropped")),
-                            time.monotonic() - t0)
+                            time.monotonic() - t0, writer.derived)
 
 
 @dataclass
