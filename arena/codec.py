@@ -28,13 +28,21 @@ import numpy as np
 import zstandard
 from numba import njit
 
-from arena.codec_names import CODECS, DEFAULT_CODEC, LOSSY_CODEC, RAW_CODEC  # noqa: F401 (re-exported)
+from arena.codec_names import (  # noqa: F401 (re-exported)
+    CODECS,
+    DEFAULT_CODEC,
+    LOSSY_CODEC,
+    MAX_EVENTS_PER_BYTE,
+    MAX_WINDOW_EVENTS,
+    RAW_CODEC,
+)
 from arena.events import EVENT_DTYPE
 
 _HEADER = struct.Struct("<4sIqIIIIII")
 _MAGIC = b"EVW1"
 _MAX_X = 2048
 _LEVEL = 1
+_EMPTY = np.empty(0, np.uint8)
 
 
 class CodecError(ValueError):
@@ -327,10 +335,14 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     return b"".join([head, *parts])
 
 
-def decode(codec: str, data: bytes, count: int, max_events: int = 10_000_000) -> np.ndarray:
+def decode(codec: str, data: bytes, count: int, max_events: int = MAX_WINDOW_EVENTS) -> np.ndarray:
     """Decode ``count`` events coded with ``codec``; raises :class:`CodecError` on any mismatch.
 
-    ``max_events`` bounds the memory a corrupt or hostile message can claim.
+    ``max_events`` (default :data:`arena.codec_names.MAX_WINDOW_EVENTS`, the limit
+    :class:`arena.messages.DecodeLimits` applies too) bounds the memory a corrupt or hostile
+    message can claim, as do :data:`~arena.codec_names.MAX_EVENTS_PER_BYTE` (a window of repeated
+    bytes that zstd packs 16 000 to one is refused) and each zstd frame's declared content size,
+    checked against the header's stream lengths before anything is allocated.
     """
     if count < 0 or count > max_events:
         raise CodecError(f"event count {count} outside [0, {max_events}]")
@@ -351,17 +363,30 @@ def decode(codec: str, data: bytes, count: int, max_events: int = 10_000_000) ->
         raise CodecError(f"{codec} payload is {len(data)} bytes, its header says {_HEADER.size + sum(sizes)}")
     if ndt > 10 * n or ndy > 3 * n:
         raise CodecError(f"{codec} escape streams larger than possible for {n} events")
+    if n > MAX_EVENTS_PER_BYTE * len(data):
+        raise CodecError(f"{codec} payload of {len(data)} bytes claims {n} events, more than "
+                         f"{MAX_EVENTS_PER_BYTE} per byte: a decompression bomb or corrupt")
     d = _decompressor()
     out, pos = [], _HEADER.size
     for size, raw_len in zip(sizes, (n, n, ndt, ndy)):
+        frame = data[pos:pos + size]
+        pos += size
+        if not raw_len:
+            if size:
+                raise CodecError(f"{codec} stream of {size} bytes where the header says it is empty")
+            out.append(_EMPTY)
+            continue
         try:
-            plane = d.decompress(data[pos:pos + size], max_output_size=raw_len) if raw_len else b""
+            # zstd allocates a frame's declared content size whatever max_output_size says
+            declared = zstandard.frame_content_size(frame)
+            if declared != raw_len and declared != -1:
+                raise CodecError(f"{codec} stream declares {declared} bytes, the header {raw_len}")
+            plane = d.decompress(frame, max_output_size=raw_len)
         except zstandard.ZstdError as exc:
             raise CodecError(f"{codec} payload is corrupt ({exc})") from None
         if len(plane) != raw_len:
             raise CodecError(f"{codec} stream has {len(plane)} bytes, expected {raw_len}")
         out.append(np.frombuffer(plane, np.uint8))
-        pos += size
     ev = np.empty(n, EVENT_DTYPE)
     err = _decode_planes(out[0], out[1], out[2], out[3], base, ev["x"], ev["y"], ev["p"], ev["t"])
     if err:

@@ -25,6 +25,8 @@ from typing import Any, ClassVar
 
 import msgpack
 
+from arena.codec_names import MAX_WINDOW_EVENTS
+
 __all__ = [
     "MessageError",
     "DecodeLimits",
@@ -55,7 +57,7 @@ class DecodeLimits:
 
     max_payload_bytes: int = 64 * 1024 * 1024  # whole message
     max_window_bytes: int = 48 * 1024 * 1024  # compressed bytes of one event window
-    max_window_events: int = 20_000_000  # decoded events of one event window
+    max_window_events: int = MAX_WINDOW_EVENTS  # decoded events of one window (the codec's own limit)
     max_str: int = 4096
     max_map: int = 256
 

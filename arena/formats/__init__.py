@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from arena.formats.aedat4 import Aedat4Reader, Aedat4Writer
-from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError
+from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, SkippedData
 from arena.formats.csvfile import CsvReader, CsvWriter
 from arena.formats.dat import DatReader, DatWriter
 from arena.formats.numpy_files import NumpyReader, NumpyWriter
 from arena.formats.raw import RawReader, RawWriter
 
-__all__ = ["FormatError", "EventReader", "EventWriter", "READ_EXTENSIONS", "WRITE_EXTENSIONS",
+__all__ = ["FormatError", "SkippedData", "EventReader", "EventWriter", "READ_EXTENSIONS", "WRITE_EXTENSIONS",
            "iter_events", "read_events", "write_events", "open_writer"]
 
 _READERS = {".raw": RawReader, ".dat": DatReader, ".aedat4": Aedat4Reader, ".csv": CsvReader,
@@ -48,7 +48,9 @@ def iter_events(path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS, **op
 
     The reader exposes ``width`` and ``height`` (px) and is a context manager.
     ``opts`` go to the format's reader (e.g. ``width``/``height`` for CSV and npy).
-    Raises :class:`FormatError` for unknown or corrupt files, ``OSError`` if unreadable.
+    Raises :class:`FormatError` for unknown or corrupt files, ``OSError`` if unreadable; what a
+    reader skips (corrupt packets, invalid events) it counts and issues as :class:`SkippedData`
+    warnings (``warnings.simplefilter("error", SkippedData)`` makes them errors).
     """
     cls = _ext(path, _READERS, "read")
     if not Path(path).is_file():

@@ -24,20 +24,41 @@ import numpy as np
 import zstandard
 
 from arena.events import EVENT_DTYPE
-from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events
+from arena.formats.base import (
+    DEFAULT_CHUNK_EVENTS,
+    EventReader,
+    EventWriter,
+    FormatError,
+    check_events,
+    check_size,
+    file_size,
+    read_exactly,
+)
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 COMPRESSIONS = {"none": 0, "lz4": 1, "lz4high": 2, "zstd": 3, "zstdhigh": 4}
 _AEDAT_EVENT = np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("on", "u1"), ("pad", "V3")])
+#: a packet decompresses to at most this many times its size (LZ4 reaches 255, real event packets
+#: under 20) and 1 MiB more, so a small hostile packet cannot claim gigabytes
+_MAX_RATIO = 1024
+_MAX_PACKET = 1 << 30
+
+
+def _at(buf: bytes, fmt: str, pos: int):
+    """``struct.unpack_from`` that refuses positions outside ``buf`` (a negative one would count
+    from the end)."""
+    if pos < 0 or pos + struct.calcsize(fmt) > len(buf):
+        raise FormatError(f"AEDAT4 FlatBuffer offset {pos} outside its {len(buf)} bytes")
+    return struct.unpack_from(fmt, buf, pos)[0]
 
 
 def _field(buf: bytes, table: int, index: int) -> int | None:
     """Absolute position of field ``index`` of the FlatBuffer table at ``table``, or None if absent."""
-    vt = table - struct.unpack_from("<i", buf, table)[0]
-    vt_size = struct.unpack_from("<H", buf, vt)[0]
+    vt = table - _at(buf, "<i", table)
+    vt_size = _at(buf, "<H", vt)
     if 4 + 2 * index + 2 > vt_size:
         return None
-    off = struct.unpack_from("<H", buf, vt + 4 + 2 * index)[0]
+    off = _at(buf, "<H", vt + 4 + 2 * index)
     return table + off if off else None
 
 
@@ -52,108 +73,152 @@ def _parse_info(xml_text: str) -> dict[int, dict]:
         attrs = {a.get("key"): (a.text or "") for a in node.findall("attr")}
         info = node.find("node[@name='info']")
         iattrs = {a.get("key"): (a.text or "") for a in info.findall("attr")} if info is not None else {}
-        streams[int(name)] = {"type": attrs.get("typeIdentifier", ""),
-                              "width": int(iattrs.get("sizeX", 0) or 0),
-                              "height": int(iattrs.get("sizeY", 0) or 0)}
+        try:
+            size = (int(iattrs.get("sizeX", 0) or 0), int(iattrs.get("sizeY", 0) or 0))
+        except ValueError:
+            raise FormatError(f"stream {name}'s sizeX/sizeY are not integers") from None
+        streams[int(name)] = {"type": attrs.get("typeIdentifier", ""), "width": size[0], "height": size[1]}
     return streams
 
 
 def _decompress(body: bytes, compression: int) -> bytes:
+    """The packet ``body`` decompressed, at most ``_MAX_RATIO`` times its size (plus 1 MiB):
+    what a frame header declares is not allocated beyond that."""
     if compression == 0:
         return body
+    cap = min(_MAX_PACKET, _MAX_RATIO * len(body) + (1 << 20))
     if compression in (1, 2):
-        return lz4.frame.decompress(body)
+        d = lz4.frame.LZ4FrameDecompressor()
+        out = d.decompress(body, max_length=cap + 1)
+        if len(out) > cap:
+            raise FormatError(f"AEDAT4 packet of {len(body)} bytes expands beyond {cap} bytes")
+        if not d.eof:
+            raise FormatError("AEDAT4 LZ4 packet is truncated")
+        return out
     if compression in (3, 4):
-        return zstandard.ZstdDecompressor().decompressobj().decompress(body)
+        declared = zstandard.frame_content_size(body)   # zstd allocates it whatever the caller's cap
+        if declared > cap:
+            raise FormatError(f"AEDAT4 packet of {len(body)} bytes declares {declared} bytes decompressed")
+        parts, total = [], 0
+        with zstandard.ZstdDecompressor(max_window_size=1 << 27).stream_reader(body) as r:
+            while piece := r.read(1 << 20):   # in pieces: read(cap) would allocate cap bytes
+                total += len(piece)
+                if total > cap:
+                    raise FormatError(f"AEDAT4 packet of {len(body)} bytes expands beyond {cap} bytes")
+                parts.append(piece)
+        return b"".join(parts)
     raise FormatError(f"unknown AEDAT4 compression {compression}")
 
 
 def _packet_events(buf: bytes) -> np.ndarray:
-    """Events of one decompressed, size-prefixed ``EventPacket`` FlatBuffer."""
+    """Events of one decompressed, size-prefixed ``EventPacket`` FlatBuffer (their x, y still
+    the file's int16: see :meth:`Aedat4Reader.chunks`)."""
     if len(buf) < 12 or buf[8:12] != b"EVTS":
         raise FormatError("AEDAT4 event packet lacks the EVTS identifier")
-    table = 4 + struct.unpack_from("<I", buf, 4)[0]
+    table = 4 + _at(buf, "<I", 4)
     pos = _field(buf, table, 0)
     if pos is None:
-        return np.empty(0, EVENT_DTYPE)
-    vec = pos + struct.unpack_from("<I", buf, pos)[0]
-    n = struct.unpack_from("<I", buf, vec)[0]
+        return np.empty(0, _AEDAT_EVENT)
+    vec = pos + _at(buf, "<I", pos)
+    n = _at(buf, "<I", vec)
     if vec + 4 + 16 * n > len(buf):
         raise FormatError("AEDAT4 event packet is shorter than its element count says")
-    raw = np.frombuffer(buf, _AEDAT_EVENT, count=n, offset=vec + 4)
-    ev = np.empty(n, EVENT_DTYPE)
-    ev["x"] = raw["x"]
-    ev["y"] = raw["y"]
-    ev["p"] = raw["on"] != 0
-    ev["t"] = raw["t"]
-    return ev
+    return np.frombuffer(buf, _AEDAT_EVENT, count=n, offset=vec + 4)
 
 
 class Aedat4Reader(EventReader):
-    """Streaming reader of the first polarity-event stream of an AEDAT 4.0 file (one chunk per packet)."""
+    """Streaming reader of the first polarity-event stream of an AEDAT 4.0 file (one chunk per packet).
+
+    A packet of that stream that does not decompress or parse is skipped and counted in
+    ``skipped`` (also ``skipped_packets``), with a :class:`~arena.formats.base.SkippedData` warning.
+    """
 
     def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> None:
         super().__init__()
         self.path = str(path)
         self._f = open(path, "rb")
         try:
+            self._size = file_size(self._f)
             if self._f.read(len(MAGIC)) != MAGIC:
                 raise FormatError(f"{path}: not an AEDAT 4.0 file (bad magic)")
             size_b = self._f.read(4)
             if len(size_b) < 4:
                 raise FormatError(f"{path}: AEDAT4 header is truncated")
             size = struct.unpack("<I", size_b)[0]
+            if size > self._size - self._f.tell():
+                raise FormatError(f"{path}: AEDAT4 header is truncated (it says {size} bytes)")
             hdr = size_b + self._f.read(size)
-            if len(hdr) < size + 4:
-                raise FormatError(f"{path}: AEDAT4 header is truncated")
-            table = 4 + struct.unpack_from("<I", hdr, 4)[0]
+            table = 4 + _at(hdr, "<I", 4)
             p = _field(hdr, table, 0)
-            self.compression = struct.unpack_from("<i", hdr, p)[0] if p else 0
+            self.compression = _at(hdr, "<i", p) if p else 0
+            if self.compression not in COMPRESSIONS.values():
+                raise FormatError(f"{path}: unknown AEDAT4 compression {self.compression}")
             p = _field(hdr, table, 1)
-            self.data_table_position = struct.unpack_from("<q", hdr, p)[0] if p else -1
+            self.data_table_position = _at(hdr, "<q", p) if p else -1
             p = _field(hdr, table, 2)
             if p is None:
                 raise FormatError(f"{path}: AEDAT4 header has no stream description")
-            s = p + struct.unpack_from("<I", hdr, p)[0]
-            n = struct.unpack_from("<I", hdr, s)[0]
+            s = p + _at(hdr, "<I", p)
+            n = _at(hdr, "<I", s)
             self.streams = _parse_info(hdr[s + 4:s + 4 + n].decode("utf-8", "replace"))
-        except (struct.error, ET.ParseError) as exc:
+        except (struct.error, ET.ParseError, FormatError, ValueError) as exc:
             self._f.close()
+            if isinstance(exc, FormatError) and str(exc).startswith(f"{path}:"):
+                raise
             raise FormatError(f"{path}: corrupt AEDAT4 header ({exc})") from None
-        except FormatError:
+        first_packet = self._f.tell()
+        if self.data_table_position > self._size:
             self._f.close()
-            raise
+            raise FormatError(f"{path}: truncated: the header says the packets end at byte "
+                              f"{self.data_table_position}, the file has {self._size} bytes")
+        if 0 <= self.data_table_position < first_packet:
+            self._f.close()
+            raise FormatError(f"{path}: the header's dataTablePosition {self.data_table_position} lies before "
+                              f"the first packet (byte {first_packet}): the header is damaged")
         ids = [i for i, s in sorted(self.streams.items()) if s["type"] == "EVTS"]
         if not ids:
             self._f.close()
             raise FormatError(f"{path}: AEDAT4 file has no polarity event (EVTS) stream")
         self.stream_id = ids[0]
-        self.width = self.streams[self.stream_id]["width"] or 1
-        self.height = self.streams[self.stream_id]["height"] or 1
+        info = self.streams[self.stream_id]
+        try:
+            self.width, self.height = check_size(info["width"] or 1, info["height"] or 1, self.path)
+        except FormatError:
+            self._f.close()
+            raise
         self.skipped_packets = 0
 
     def chunks(self):
+        end = self.data_table_position if self.data_table_position >= 0 else self._size
         while True:
-            if 0 <= self.data_table_position <= self._f.tell():
+            pos = self._f.tell()
+            if pos >= end:
+                if pos > end:
+                    raise FormatError(f"{self.path}: a packet runs over the header's dataTablePosition {end}: "
+                                      "the header or the packet is damaged")
                 return
             head = self._f.read(8)
             if len(head) < 8:
-                if head:
-                    raise FormatError(f"{self.path}: truncated AEDAT4 packet header")
-                return
+                raise FormatError(f"{self.path}: truncated AEDAT4 packet header at byte {pos}")
             sid, size = struct.unpack("<ii", head)
-            body = self._f.read(size)
-            if size < 0 or len(body) < size:
-                raise FormatError(f"{self.path}: truncated AEDAT4 packet ({len(body)} of {size} bytes)")
+            if 0 <= size <= self._size - pos - 8 and size > end - pos - 8:
+                raise FormatError(f"{self.path}: the packet at byte {pos} runs over the header's dataTablePosition "
+                                  f"{end}: the header or the packet is damaged")
+            if size < 0 or size > end - pos - 8:
+                raise FormatError(f"{self.path}: truncated AEDAT4 packet at byte {pos} (it says {size} bytes, "
+                                  f"{end - pos - 8} left)")
             if sid != self.stream_id:
+                self._f.seek(size, 1)
                 continue
+            body = read_exactly(self._f, size, end, "AEDAT4 packet", self.path)
             try:
-                ev = _packet_events(_decompress(body, self.compression))
-            except (RuntimeError, zstandard.ZstdError, struct.error, FormatError):
+                raw = _packet_events(_decompress(body, self.compression))
+            except (RuntimeError, zstandard.ZstdError, FormatError) as exc:
                 self.skipped_packets += 1
+                self._skip(1, "corrupt packets", f"AEDAT4 event packet at byte {pos} skipped ({exc})")
                 continue
-            if ev.size:
-                yield self._valid(ev)
+            if raw.size:
+                yield self._valid(self._columns(raw["x"], raw["y"], raw["on"] != 0, raw["t"]))
 
     def close(self) -> None:
         self._f.close()

@@ -1,6 +1,8 @@
 """The paper's CSV: one event per line ``x,y,p,t_us`` (px, px, 1/0, µs), with or without
 a header line. A header may name the columns in another order (``t,x,y,p``,
-``timestamp``, ``polarity``); polarity -1 is read as 0 (OFF).
+``timestamp``, ``polarity``); polarity -1 is read as 0 (OFF). Lines with a polarity other than
+-1/0/1 or a coordinate outside 0..65534 are counted in ``invalid`` and skipped (never wrapped into
+16 bits); a value beyond 64 bits is an error.
 """
 
 from __future__ import annotations
@@ -9,8 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from arena.events import EVENT_DTYPE
-from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events
+from arena.formats.base import (
+    DEFAULT_CHUNK_EVENTS,
+    EventReader,
+    EventWriter,
+    FormatError,
+    check_events,
+    check_size,
+)
 
 #: longest first line read (a header, or the first event): a file without newlines is not read whole
 _MAX_HEADER = 4096
@@ -58,23 +66,25 @@ class CsvReader(EventReader):
             mx = int(self._first["x"].max()) + 1 if self._first is not None and self._first.size else 1
             my = int(self._first["y"].max()) + 1 if self._first is not None and self._first.size else 1
             width, height = width or mx, height or my
-        self.width, self.height = int(width), int(height)
+        try:
+            self.width, self.height = check_size(width, height, self.path)
+        except FormatError:
+            self._f.close()
+            raise
 
     def _parse(self, block: bytes) -> np.ndarray:
         try:
             vals = np.array(block.replace(b",", b" ").split(), dtype=np.int64)
         except ValueError:
             raise FormatError(f"{self.path}: non-numeric value in the CSV near line {self._line + 1}") from None
+        except OverflowError:
+            raise FormatError(f"{self.path}: a value beyond 64 bits in the CSV near line {self._line + 1}") from None
         if vals.size % 4:
             raise FormatError(f"{self.path}: a CSV line near line {self._line + 1} does not have 4 columns")
         vals = vals.reshape(-1, 4)
         self._line += vals.shape[0]
-        ev = np.empty(vals.shape[0], EVENT_DTYPE)
-        ev["x"] = vals[:, self._order[0]]
-        ev["y"] = vals[:, self._order[1]]
-        ev["p"] = vals[:, self._order[2]] > 0
-        ev["t"] = vals[:, self._order[3]]
-        return ev
+        o = self._order
+        return self._columns(vals[:, o[0]], vals[:, o[1]], vals[:, o[2]], vals[:, o[3]])
 
     def _next(self):
         data = self._pending + self._f.read(self._chunk_bytes)

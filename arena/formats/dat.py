@@ -14,10 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from arena.events import EVENT_DTYPE
-from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events
+from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events, check_size
 
 _CD_TYPE = 0x0C
 _WORD = np.dtype([("t", "<u4"), ("d", "<u4")])
+#: longest header line read (real ones are < 100 bytes): a file of one endless line is not read whole
+_MAX_LINE = 4096
 
 
 class DatReader(EventReader):
@@ -25,16 +27,28 @@ class DatReader(EventReader):
 
     def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> None:
         super().__init__()
+        self.path = str(path)
         self._f = open(path, "rb")
+        try:
+            self._header(path)
+        except FormatError:
+            self._f.close()
+            raise
+        self._chunk = chunk_events
+        self._offset = 0
+        self._last = -1
+        self.truncated_bytes = 0
+
+    def _header(self, path) -> None:
         fields: dict[str, str] = {}
         while True:
             pos = self._f.tell()
             if self._f.read(1) != b"%":
                 self._f.seek(pos)
                 break
-            line = self._f.readline()
+            line = self._f.readline(_MAX_LINE)
             if not line.endswith(b"\n"):
-                raise FormatError(f"{path}: DAT header is truncated")
+                raise FormatError(f"{path}: DAT header is truncated (or a line is longer than {_MAX_LINE} bytes)")
             key, _, value = line.decode("latin-1").strip().partition(" ")
             fields[key.lower()] = value.strip()
         pre = self._f.read(2)
@@ -44,17 +58,18 @@ class DatReader(EventReader):
         if self.event_size != 8:
             raise FormatError(f"{path}: DAT event size {self.event_size} not supported (expected 8)")
         self.fields = fields
-        self.width = int(fields.get("width", 0))
-        self.height = int(fields.get("height", 0))
-        if not (self.width and self.height):
+        try:
+            width, height = int(fields.get("width", 0)), int(fields.get("height", 0))
+        except ValueError:
+            raise FormatError(f"{path}: DAT header's Width/Height are not integers") from None
+        if not (width and height):
             m = re.search(r"(\d+)\s*x\s*(\d+)", fields.get("geometry", ""))
-            self.width, self.height = (int(m.group(1)), int(m.group(2))) if m else (1280, 720)
-        self._chunk = chunk_events
-        self._offset = 0
-        self._last = -1
-        self.truncated_bytes = 0
+            width, height = (int(m.group(1)), int(m.group(2))) if m else (1280, 720)
+        self.width, self.height = check_size(width, height, str(path))
 
     def chunks(self):
+        """Event chunks; bytes of an event cut off by the end of the file are counted in
+        ``skipped`` (and ``truncated_bytes``) and reported."""
         while True:
             data = self._f.read(self._chunk * 8)
             if not data:
@@ -62,6 +77,8 @@ class DatReader(EventReader):
             n = len(data) // 8
             if len(data) % 8:
                 self.truncated_bytes = len(data) % 8
+                self._skip(self.truncated_bytes, "bytes of a cut-off event",
+                           "the file ends inside an event (truncated?): its bytes are ignored")
             w = np.frombuffer(data[:n * 8], dtype=_WORD)
             t = w["t"].astype(np.int64)
             prev = np.empty(n, np.int64)
@@ -78,6 +95,10 @@ class DatReader(EventReader):
             ev["y"] = (d >> 14) & 0x3FFF
             ev["p"] = (d >> 28) & 1
             ev["t"] = t
+            bad = d >= (2 << 28)             # a polarity nibble other than 0 or 1: corrupt
+            if bad.any():
+                self._invalid(int(np.count_nonzero(bad)))
+                ev = ev[~bad]
             yield self._valid(ev)
 
     def close(self) -> None:

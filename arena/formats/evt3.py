@@ -101,7 +101,8 @@ def _decode(words, state, xs, ys, ps, ts):
                     b += 1
             else:
                 skipped += 1
-            bx += nb
+            if bx < 4096:                   # a run of vectors past x 2047 is garbage: never wrap x
+                bx += nb
         elif typ == 0x6:
             tl = w & 0xFFF
             t = off + ((th << 12) | tl)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events
+from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events, check_size
 from arena.formats.evt2 import Evt2Decoder, Evt2Encoder, Evt21Decoder
 from arena.formats.evt3 import Evt3Decoder, Evt3Encoder
 
@@ -43,7 +43,19 @@ class RawHeader:
 
 
 def parse_raw_header(data: bytes) -> RawHeader:
-    """Parse the header at the start of ``data`` (the first few KB of a RAW file)."""
+    """Parse the header at the start of ``data`` (the first few KB of a RAW file); raises
+    :class:`FormatError` if it names no known EVT version or a sensor size that is not 1..65535 px."""
+    try:
+        hdr = _parse_raw_header(data)
+    except ValueError as exc:   # int() of a size that is not a number
+        if isinstance(exc, FormatError):
+            raise
+        raise FormatError(f"RAW header gives a sensor size that is not a number ({exc})") from None
+    hdr.width, hdr.height = check_size(hdr.width, hdr.height, "RAW header")
+    return hdr
+
+
+def _parse_raw_header(data: bytes) -> RawHeader:
     fields: dict[str, str] = {}
     pos = 0
     while pos < len(data) and data[pos:pos + 1] == b"%":
@@ -100,25 +112,37 @@ class RawReader(EventReader):
 
     def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> None:
         super().__init__()
+        self.path = str(path)
         self._f = open(path, "rb")
         head = self._f.read(1 << 16)
-        self.header = parse_raw_header(head)
+        try:
+            self.header = parse_raw_header(head)
+        except FormatError as exc:
+            self._f.close()
+            raise FormatError(f"{path}: {exc}") from None
         self.width, self.height = self.header.width, self.header.height
         self.decoder = make_decoder(self.header.version)
         self._f.seek(self.header.size)
         self._chunk_bytes = max(64, chunk_events * self.decoder.word_bytes)
 
     def chunks(self):
+        """Event chunks; event words before the first TIME_HIGH (no time known) and the bytes of
+        a word cut off by the end of the file are counted in ``skipped`` and reported."""
+        words = 0
         while True:
             data = self._f.read(self._chunk_bytes)
             if not data:
                 break
             ev = self.decoder.feed(data)
+            if self.decoder.skipped_words > words:
+                self._skip(self.decoder.skipped_words - words, "event words without a time",
+                           "event words before the first TIME_HIGH (no time known) skipped")
+                words = self.decoder.skipped_words
             if ev.size:
                 yield self._valid(ev)
         if self.decoder.pending_bytes:
-            log.warning("RAW file ends inside a word (%d byte(s) ignored): truncated?",
-                        self.decoder.pending_bytes)
+            self._skip(self.decoder.pending_bytes, "bytes of a cut-off word",
+                       "the file ends inside a word (truncated?): its bytes are ignored")
 
     def close(self) -> None:
         self._f.close()

@@ -135,3 +135,106 @@ def test_corrupt_payloads_raise_codec_error():
             assert out.size == 5000
         except CodecError:
             pass
+
+
+# --- hostile windows (issue 20): nothing a window claims is allocated before it is checked ---
+
+def _window_with_streams(n: int, streams: list[bytes], ndt: int = 0, ndy: int = 0) -> bytes:
+    """A planes-zstd/1 payload of ``n`` events made of the given four compressed streams."""
+    import struct
+
+    return struct.pack("<4sIqIIIIII", b"EVW1", n, 0, ndt, ndy, *(len(s) for s in streams)) + b"".join(streams)
+
+
+def _bomb_frame(raw_len: int, declared: int) -> bytes:
+    """A zstd frame of ``raw_len`` zero bytes whose header declares ``declared`` bytes (4-byte
+    frame content size field, single segment)."""
+    import struct
+
+    import zstandard
+
+    frame = zstandard.ZstdCompressor(level=1).compress(b"\0" * raw_len)
+    fhd = frame[4]
+    fcs_len = (1, 2, 4, 8)[fhd >> 6] if fhd & 0x20 else (0, 2, 4, 8)[fhd >> 6]
+    return frame[:4] + bytes([0xA0 | (fhd & 0x1F)]) + struct.pack("<I", declared) + frame[5 + fcs_len:]
+
+
+def test_a_frame_declaring_2_gib_is_refused_before_zstd_allocates_it():
+    # zstandard allocates a frame's declared content size whatever max_output_size says: under
+    # an address-space limit of 256 MB over the baseline the unchecked decode was a MemoryError
+    from tests.fuzz.harness import run_bounded
+
+    r = run_bounded(
+        """
+        import numpy as np
+        from arena.codec import DEFAULT_CODEC, CodecError, decode, encode
+        from arena.events import make_events
+        from tests.arena.test_codec import _bomb_frame, _window_with_streams
+        ev = make_events(np.arange(1000) % 2000, np.zeros(1000), np.ones(1000), np.zeros(1000))
+        decode(DEFAULT_CODEC, encode(ev), 1000)          # warm up the kernels
+        bomb = _window_with_streams(1000, [_bomb_frame(1000, 2**31), _bomb_frame(1000, 1000), b"", b""])
+        """,
+        """
+        try:
+            decode(DEFAULT_CODEC, bomb, 1000)
+        except CodecError as exc:
+            print("CodecError:", exc)
+        """)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "CodecError" in r.stdout and "declares 2147483648 bytes" in r.stdout, r.stdout
+
+
+def test_a_window_claiming_10m_events_from_a_few_hundred_bytes_is_refused_without_allocating():
+    # an 848-byte window expanded to 10 M events (130 MB) before anything was checked
+    import tracemalloc
+
+    import zstandard
+
+    n = 10_000_000
+    z = zstandard.ZstdCompressor(level=19)
+    data = _window_with_streams(n, [z.compress(b"\x10" + b"\0" * (n - 1)), z.compress(b"\0" * n), b"", b""])
+    assert len(data) < 2000
+    tracemalloc.start()
+    try:
+        with pytest.raises(CodecError, match="per byte"):
+            decode(DEFAULT_CODEC, data, n)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20, f"{peak / 1e6:.0f} MB allocated for a refused window"
+
+
+def test_every_pixel_firing_at_once_still_decodes():
+    # the densest real window (a flash: every pixel of the sensor in one µs) is far inside the ratio bound
+    yy, xx = np.mgrid[0:720, 0:1280]
+    ev = make_events(xx.ravel(), yy.ravel(), np.ones(xx.size), np.full(xx.size, 123))
+    for codec in (DEFAULT_CODEC, LOSSY_CODEC):
+        np.testing.assert_array_equal(decode(codec, encode(ev, codec), ev.size), ev)
+
+
+def test_one_event_limit_shared_by_the_codec_and_the_messages():
+    from arena import messages as m
+    from arena.codec_names import MAX_WINDOW_EVENTS
+
+    assert m.DEFAULT_LIMITS.max_window_events == MAX_WINDOW_EVENTS == 10_000_000
+    win = m.EventWindow(camera="c", seq=0, t_start_us=0, t_end_us=1, width=1, height=1,
+                        count=MAX_WINDOW_EVENTS + 1, codec=DEFAULT_CODEC, data=b"")
+    with pytest.raises(m.MessageError, match="cap"):   # was accepted up to 20 M, then refused by the codec
+        m.EventWindow.decode(win.encode())
+    with pytest.raises(CodecError, match="outside"):
+        decode(DEFAULT_CODEC, b"", MAX_WINDOW_EVENTS + 1)
+
+
+def test_bytes_in_a_stream_the_header_says_is_empty_are_refused():
+    import struct
+
+    ev = make_events([1, 5, 9], [0, 0, 0], [0, 1, 1], [10, 10, 20])
+    data = encode(ev, t_ref_us=0)
+    _, n, _, ndt, ndy, *sizes = struct.unpack_from("<4sIqIIIIII", data)
+    cuts = np.cumsum([40, *sizes])
+    streams = [data[a:b] for a, b in zip(cuts[:-1], cuts[1:])]
+    assert ndy == 0 and streams[3] == b""
+    np.testing.assert_array_equal(decode(DEFAULT_CODEC, _window_with_streams(n, streams, ndt, ndy), 3), ev)
+    # bytes in the dy escape stream, which the header says is empty (they were ignored)
+    with pytest.raises(CodecError, match="empty"):
+        decode(DEFAULT_CODEC, _window_with_streams(n, [*streams[:3], b"\x28\xb5\x2f\xfd"], ndt, ndy), 3)

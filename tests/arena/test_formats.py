@@ -334,3 +334,287 @@ def test_a_file_that_is_not_a_csv_is_one_short_error(tmp_path, content, message)
                        text=True, timeout=60)
     assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and len(r.stderr) < 400
+
+
+# --- hostile recordings (issue 20): one error type, no allocation beyond the file, values
+# range-checked, anything skipped counted and reported ---
+
+import struct  # noqa: E402
+import subprocess  # noqa: E402
+import warnings  # noqa: E402
+
+from arena.formats.base import SkippedData  # noqa: E402
+
+
+def _read_quietly(path, **opts):
+    """``(events, reader)`` with the reader's SkippedData warnings collected in ``reader.warned``."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SkippedData)
+        with iter_events(path, **opts) as reader:
+            ev = reader.read_all()
+    reader.warned = [w.message for w in caught if issubclass(w.category, SkippedData)]
+    return ev, reader
+
+
+def _npy_with_header(path, header: str, body: bytes = b"") -> None:
+    h = header.encode("latin-1")
+    h += b" " * (-(10 + len(h) + 1) % 64) + b"\n"
+    path.write_bytes(b"\x93NUMPY\x01\x00" + struct.pack("<H", len(h)) + h + body)
+
+
+def test_npy_header_claiming_2_to_the_40_events_is_a_format_error(tmp_path):
+    # np.load allocated shape x itemsize (13 TB) before reading: MemoryError
+    descr = "[('x', '<u2'), ('y', '<u2'), ('p', 'u1'), ('t', '<i8')]"
+    _npy_with_header(tmp_path / "big.npy", f"{{'descr': {descr}, 'fortran_order': False, 'shape': ({1 << 40},), }}",
+                     bytes(13 * 10))
+    with pytest.raises(FormatError, match="larger than"):
+        read_events(tmp_path / "big.npy")
+    _npy_with_header(tmp_path / "tok.npy", "{'descr': ((")     # numpy's header tokenizer: TokenError
+    with pytest.raises(FormatError, match="numpy"):
+        read_events(tmp_path / "tok.npy")
+
+
+def test_damaged_npz_files_are_format_errors(tmp_path):
+    ev = _random_events(2000, seed=20)
+    write_events(tmp_path / "ok.npz", ev, 1280, 720)
+    data = bytearray((tmp_path / "ok.npz").read_bytes())
+    for i, pos in enumerate((200, 600, 1500)):             # inside compressed members: zlib / CRC errors
+        bad = data.copy()
+        bad[pos:pos + 8] = b"\xff" * 8
+        (tmp_path / f"b{i}.npz").write_bytes(bytes(bad))
+        with pytest.raises(FormatError):
+            read_events(tmp_path / f"b{i}.npz")
+    np.savez(tmp_path / "w.npz", x=ev["x"], y=ev["y"], p=ev["p"], t=ev["t"], width=np.array([1, 2, 3]), height=720)
+    with pytest.raises(FormatError, match="width must be one integer"):   # int() of it: TypeError
+        read_events(tmp_path / "w.npz")
+    np.savez(tmp_path / "neg.npz", x=ev["x"], y=ev["y"], p=ev["p"], t=ev["t"], width=-1280, height=720)
+    with pytest.raises(FormatError, match="outside 1..65535"):
+        read_events(tmp_path / "neg.npz")
+
+
+def test_npz_member_declaring_more_than_deflate_can_expand_is_refused(tmp_path):
+    import zipfile
+
+    ev = _random_events(100, seed=21)
+    write_events(tmp_path / "ok.npz", ev, 1280, 720)
+    data = bytearray((tmp_path / "ok.npz").read_bytes())
+    with zipfile.ZipFile(tmp_path / "ok.npz") as zf:
+        info = zf.getinfo("x.npy")
+    # the uncompressed size in the central directory entry of x.npy
+    cd = data.rfind(b"PK\x01\x02", 0, data.find(b"x.npy", data.find(b"PK\x01\x02")) + 1)
+    struct.pack_into("<I", data, cd + 24, 1 << 31)
+    (tmp_path / "bomb.npz").write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="decompression bomb"):
+        read_events(tmp_path / "bomb.npz")
+    assert info.compress_size < 1000
+
+
+@pytest.mark.parametrize("ext", [".npz", ".npy", ".csv"])
+def test_coordinates_beyond_16_bits_and_polarity_2_are_dropped_and_counted_not_wrapped(tmp_path, ext):
+    x = np.array([1, 65636, 3, 5, -4], np.int64)    # 65636 wrapped to x = 100
+    y = np.array([2, 2, 4, 6, 1], np.int64)
+    p = np.array([1, 1, 2, 0, 1], np.int64)         # polarity 2 passed through (RAW: a vector word)
+    t = np.array([100, 200, 300, 400, 500], np.int64)
+    path = tmp_path / f"in{ext}"
+    if ext == ".npz":
+        np.savez(path, x=x, y=y, p=p, t=t, width=1280, height=720)
+    elif ext == ".npy":
+        arr = np.empty(5, [("x", "<i8"), ("y", "<i8"), ("p", "<i8"), ("t", "<i8")])
+        arr["x"], arr["y"], arr["p"], arr["t"] = x, y, p, t
+        np.save(path, arr)
+    else:
+        path.write_text("x,y,p,t\n" + "".join(f"{a},{b},{c},{d}\n" for a, b, c, d in zip(x, y, p, t)))
+    ev, reader = _read_quietly(path, width=1280, height=720)
+    assert ev.tolist() == [(1, 2, 1, 100), (5, 6, 0, 400)]
+    assert reader.invalid == 3 and sum(w.count for w in reader.warned) == 3
+    write_events(tmp_path / "out.raw", ev, 1280, 720)
+    np.testing.assert_array_equal(read_events(tmp_path / "out.raw")[0], ev)
+
+
+def test_csv_value_beyond_64_bits_is_a_format_error(tmp_path):
+    (tmp_path / "big.csv").write_text("1,2,1,100\n3,4,0,99999999999999999999\n")
+    with pytest.raises(FormatError, match="64 bits"):
+        read_events(tmp_path / "big.csv")
+
+
+def _aedat4(tmp_path, name="x.aedat4", n=3000, compression="lz4", packet_events=1000, width=1280):
+    ev = _random_events(n, seed=22)
+    from arena.formats.aedat4 import Aedat4Writer
+
+    with Aedat4Writer(tmp_path / name, width, 720, compression=compression, packet_events=packet_events) as w:
+        w.write(ev)
+    return tmp_path / name, ev
+
+
+def _aedat4_packets(data: bytes) -> list[tuple[int, int]]:
+    """(offset, size) of each packet of an AEDAT4 file our writer made."""
+    pos = 14 + 4 + struct.unpack_from("<I", data, 14)[0]
+    out = []
+    while pos < len(data):
+        size = struct.unpack_from("<i", data, pos + 4)[0]
+        out.append((pos, size))
+        pos += 8 + size
+    return out
+
+
+def test_aedat4_negative_packet_size_is_a_format_error(tmp_path):
+    path, _ = _aedat4(tmp_path)
+    data = bytearray(path.read_bytes())
+    pos, _ = _aedat4_packets(bytes(data))[1]
+    struct.pack_into("<i", data, pos + 4, -5)          # f.read(-5): ValueError from chunks()
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="truncated AEDAT4 packet"):
+        read_events(path)
+    struct.pack_into("<i", data, pos + 4, 2**31 - 1)   # read() allocated the 2 GB first
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="truncated AEDAT4 packet"):
+        read_events(path)
+
+
+@pytest.mark.parametrize("compression", ["lz4", "zstd"])
+def test_aedat4_packet_that_does_not_decompress_is_counted_and_reported(tmp_path, compression):
+    path, ev = _aedat4(tmp_path, compression=compression)
+    data = bytearray(path.read_bytes())
+    pos, size = _aedat4_packets(bytes(data))[1]
+    data[pos + 8: pos + 12] = b"\xa5" * 4         # the compressed frame's magic
+    path.write_bytes(bytes(data))
+    out, reader = _read_quietly(path)
+    np.testing.assert_array_equal(out, np.concatenate([ev[:1000], ev[2000:]]))
+    assert reader.skipped == reader.skipped_packets == 1
+    assert [(w.count, w.unit) for w in reader.warned] == [(1, "corrupt packets")]
+    assert f"byte {pos}" in str(reader.warned[0])
+
+
+def _xxh32(data: bytes, seed: int = 0) -> int:
+    """xxHash32 (LZ4 frame header checksums)."""
+    p1, p2, p3, p4, p5, m = 2654435761, 2246822519, 3266489917, 668265263, 374761393, 0xFFFFFFFF
+
+    def rotl(x, r):
+        return ((x << r) | (x >> (32 - r))) & m
+
+    n, i = len(data), 0
+    if n >= 16:
+        v = [(seed + p1 + p2) & m, (seed + p2) & m, seed & m, (seed - p1) & m]
+        while i + 16 <= n:
+            for k in range(4):
+                v[k] = rotl((v[k] + struct.unpack_from("<I", data, i)[0] * p2) & m, 13) * p1 & m
+                i += 4
+        h = (rotl(v[0], 1) + rotl(v[1], 7) + rotl(v[2], 12) + rotl(v[3], 18)) & m
+    else:
+        h = (seed + p5) & m
+    h = (h + n) & m
+    while i + 4 <= n:
+        h = rotl((h + struct.unpack_from("<I", data, i)[0] * p3) & m, 17) * p4 & m
+        i += 4
+    while i < n:
+        h = rotl((h + data[i] * p5) & m, 11) * p1 & m
+        i += 1
+    h ^= h >> 15
+    h = h * p2 & m
+    h ^= h >> 13
+    h = h * p3 & m
+    return h ^ (h >> 16)
+
+
+def test_aedat4_packet_declaring_a_huge_size_is_skipped_without_allocating_it(tmp_path):
+    import lz4.frame
+
+    path, ev = _aedat4(tmp_path, compression="lz4")
+    data = path.read_bytes()
+    pos, size = _aedat4_packets(data)[0]
+    # an LZ4 frame whose header declares 2^40 bytes of content: lz4.frame.decompress allocated it
+    frame = bytearray(lz4.frame.compress(b"\0" * 64, store_size=True))
+    assert frame[14] == _xxh32(bytes(frame[4:14])) >> 8 & 0xFF      # the header checksum
+    struct.pack_into("<Q", frame, 6, 1 << 40)
+    frame[14] = _xxh32(bytes(frame[4:14])) >> 8 & 0xFF
+    body = bytes(frame)
+    bomb = data[:pos] + struct.pack("<ii", 0, len(body)) + body + data[pos + 8 + size:]
+    path.write_bytes(bomb)
+    out, reader = _read_quietly(path)
+    assert reader.skipped == 1 and out.size == 2000
+
+
+def test_aedat4_damaged_data_table_position_is_an_error_not_zero_events(tmp_path):
+    path, _ = _aedat4(tmp_path)
+    data = bytearray(path.read_bytes())
+    i = data.find(struct.pack("<q", -1))                 # the header's dataTablePosition
+    for value, match in ((20, "before the first packet"), (len(data) + 100, "truncated")):
+        struct.pack_into("<q", data, i, value)
+        path.write_bytes(bytes(data))
+        with pytest.raises(FormatError, match=match):
+            read_events(path)
+    pos, _ = _aedat4_packets(bytes(data))[1]
+    struct.pack_into("<q", data, i, pos + 5)             # inside a packet
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="runs over"):
+        read_events(path)
+
+
+@pytest.mark.parametrize("ext", [".aedat4", ".raw", ".dat"])
+def test_negative_or_absurd_sensor_sizes_are_format_errors(tmp_path, ext):
+    path = tmp_path / f"x{ext}"
+    ev = _random_events(100, seed=23)
+    if ext == ".aedat4":
+        _aedat4(tmp_path, name=path.name, width=-5)      # the writer puts sizeX -5 in the XML
+    elif ext == ".raw":
+        write_events(path, ev, 1280, 720)
+        path.write_bytes(path.read_bytes().replace(b"width=1280", b"width=-1280"))
+    else:
+        write_events(path, ev, 1280, 720)
+        path.write_bytes(path.read_bytes().replace(b"% Width 1280", b"% Width 99999999"))
+    with pytest.raises(FormatError, match="outside 1..65535"):
+        read_events(path)
+
+
+def test_dat_polarity_nibble_other_than_0_or_1_is_dropped_and_counted(tmp_path):
+    ev = _random_events(100, seed=24)
+    write_events(tmp_path / "x.dat", ev, 1280, 720)
+    data = bytearray((tmp_path / "x.dat").read_bytes())
+    start = len(data) - 100 * 8
+    struct.pack_into("<I", data, start + 4, struct.unpack_from("<I", data, start + 4)[0] | (3 << 28))
+    (tmp_path / "x.dat").write_bytes(bytes(data))
+    out, reader = _read_quietly(tmp_path / "x.dat")
+    assert reader.invalid == 1
+    np.testing.assert_array_equal(out, ev[1:])
+
+
+def test_evt3_vector_run_past_x_2047_is_not_wrapped_into_the_sensor():
+    # 5462 empty VECT_12 words move the vector base past 65535: x wrapped to 8
+    words = np.array([0x8000, 0x6000, 0x0001, 0x3000] + [0x4000] * 5462 + [0x4001], "<u2")
+    ev = Evt3Decoder().feed(words.tobytes())
+    assert ev.size == 1 and ev["x"][0] >= 2048
+
+
+def test_raw_words_before_time_and_a_cut_off_word_are_counted_and_reported(tmp_path):
+    ev = _random_events(50, seed=25)
+    write_events(tmp_path / "x.raw", ev, 1280, 720)
+    data = (tmp_path / "x.raw").read_bytes()
+    hsize = parse_raw_header(data).size
+    early = np.array([0x0003, 0x2005, 0x2006], "<u2").tobytes()    # Y, two events before any TIME_HIGH
+    (tmp_path / "x.raw").write_bytes(data[:hsize] + early + data[hsize:] + b"\x01")
+    out, reader = _read_quietly(tmp_path / "x.raw")
+    np.testing.assert_array_equal(out, ev)
+    assert reader.skipped == 3
+    assert sorted((w.unit, w.count) for w in reader.warned) == [("bytes of a cut-off word", 1),
+                                                                ("event words without a time", 2)]
+
+
+def test_arena_convert_reports_skipped_packets_and_strict_fails(tmp_path):
+    from tests.conftest import arena_cmd
+
+    path, ev = _aedat4(tmp_path)
+    data = bytearray(path.read_bytes())
+    pos, size = _aedat4_packets(bytes(data))[1]
+    data[pos + 8: pos + 12] = b"\xa5" * 4         # the compressed frame's magic
+    path.write_bytes(bytes(data))
+    out = tmp_path / "out.npz"
+    r = subprocess.run(arena_cmd("convert", str(path), str(out)), capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "2000 events" in r.stdout and "1 corrupt packets skipped" in r.stdout
+    assert "warning" in r.stderr and "Traceback" not in r.stderr
+    assert read_events(out)[0].size == 2000
+    out.unlink()
+    r = subprocess.run(arena_cmd("convert", str(path), str(out), "--strict"), capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and "--strict" in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
