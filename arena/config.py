@@ -292,6 +292,8 @@ SERVICE_OPTIONS: dict[str, dict[str, ServiceOption]] = {
         "low_battery_mv": _opt("int", 4400, "stop missions below this battery voltage, mV", lo=0),
         "baudrate": _opt("int", 57600, "serial baud rate", positive=True, dest="baud"),
         "track_delay_s": _opt("float", 0.0, "extra age of track poses, s", lo=0, dest="track_delay"),
+        "link_timeout_s": _opt("float", 2.0, "a robot's link is down after this long without a frame from it, s",
+                               positive=True, dest="link_timeout"),
     },
     "groundtruth": {  # arena groundtruth (the webcam service; its source and detector are in [webcam])
         "clock": _opt("str", "host", "frame times: host clock at capture, or the MJPEG stream's",

@@ -70,9 +70,13 @@ _POS_M = 1e4  # any coordinate beyond 10 km is garbage
 
 
 def _spec(kind: str, *, optional: bool = False, lo: float | None = None, hi: float | None = None,
-          choices: tuple | None = None, length: int | None = None, default: Any = MISSING) -> Any:
-    """Declare a message field: its wire type and the checks applied on decode."""
+          choices: tuple | None = None, length: int | None = None, default: Any = MISSING,
+          rows: bool = False) -> Any:
+    """Declare a message field: its wire type and the checks applied on decode. ``rows``: a
+    ``map`` whose values may also be lists of numeric rows (see :func:`_check_rows`)."""
     meta = {"kind": kind, "optional": optional, "lo": lo, "hi": hi, "choices": choices, "length": length}
+    if rows:
+        meta["rows"] = True
     if default is MISSING and optional:
         default = None
     if isinstance(default, (dict, list)):
@@ -81,6 +85,24 @@ def _spec(kind: str, *, optional: bool = False, lo: float | None = None, hi: flo
     if default is MISSING:
         return field(metadata=meta)
     return field(default=default, metadata=meta)
+
+
+#: most rows of a ``rows`` map value (e.g. a mission's waypoints), and numbers per row
+MAX_PARAM_ROWS = 1024
+MAX_ROW_LEN = 64
+
+
+def _check_rows(value: list, where: str) -> list:
+    """A list of rows of finite numbers (``[[x, y], ...]``): at most :data:`MAX_PARAM_ROWS` rows of
+    at most :data:`MAX_ROW_LEN` numbers, nothing nested deeper."""
+    if len(value) > MAX_PARAM_ROWS:
+        raise MessageError(f"{where}: {len(value)} rows, at most {MAX_PARAM_ROWS}")
+    out = []
+    for i, row in enumerate(value):
+        if len(row) > MAX_ROW_LEN or any(isinstance(c, bool) or not isinstance(c, (int, float)) for c in row):
+            raise MessageError(f"{where}[{i}]: a row must be a list of at most {MAX_ROW_LEN} numbers")
+        out.append([_check_scalar(c, f"{where}[{i}]") for c in row])
+    return out
 
 
 def _check_scalar(value: Any, where: str) -> Any:
@@ -162,7 +184,11 @@ def _validate(cls_name: str, name: str, meta: dict, value: Any, limits: DecodeLi
         for k, v in value.items():
             if not isinstance(k, str) or len(k) > 128:
                 raise MessageError(f"{where}: keys must be strings of at most 128 characters")
-            out[k] = _check_scalar(v, f"{where}[{k!r}]")
+            if (meta.get("rows") and isinstance(v, list) and v
+                    and all(isinstance(row, list) for row in v)):
+                out[k] = _check_rows(v, f"{where}[{k!r}]")
+            else:
+                out[k] = _check_scalar(v, f"{where}[{k!r}]")
         return out
     raise AssertionError(f"unknown field kind {kind}")  # programming error in a schema
 
@@ -362,7 +388,7 @@ class MissionCommand(Message):
 
     KIND: ClassVar[str] = "mission"
     mission: str = _spec("str")
-    params: dict = _spec("map", default={})
+    params: dict = _spec("map", default={}, rows=True)  # values may be rows: points=[[x, y], ...]
     power: float | None = _spec("float", optional=True, lo=0.0, hi=1.0)
     speed_mps: float | None = _spec("float", optional=True, lo=0.0, hi=2.0)
     control: str = _spec("str", choices=("paper", "closed"), default="paper")

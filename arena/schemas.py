@@ -152,10 +152,17 @@ _WIRE_DOC = (
 )
 
 
-def _scalar_value() -> dict:
-    """A value inside a ``map`` field: a scalar, or a flat list of at most 64 scalars."""
+def _scalar_value(rows: bool = False) -> dict:
+    """A value inside a ``map`` field: a scalar, or a flat list of at most 64 scalars; with
+    ``rows`` (a mission's params) also a list of rows of numbers (waypoints)."""
+    from arena.messages import MAX_PARAM_ROWS, MAX_ROW_LEN
+
     scalar = {"type": ["null", "boolean", "integer", "number", "string"]}
-    return {"anyOf": [scalar, {"type": "array", "maxItems": 64, "items": scalar}]}
+    options = [scalar, {"type": "array", "maxItems": 64, "items": scalar}]
+    if rows:
+        options.append({"type": "array", "maxItems": MAX_PARAM_ROWS,
+                        "items": {"type": "array", "maxItems": MAX_ROW_LEN, "items": {"type": "number"}}})
+    return {"anyOf": options}
 
 
 def _field_schema(meta: dict, doc: str) -> dict:
@@ -192,7 +199,7 @@ def _field_schema(meta: dict, doc: str) -> dict:
         out["type"] = "object"
         out["maxProperties"] = DEFAULT_LIMITS.max_map
         out["propertyNames"] = {"maxLength": 128}
-        out["additionalProperties"] = _scalar_value()
+        out["additionalProperties"] = _scalar_value(bool(meta.get("rows")))
     else:  # pragma: no cover - a new field kind in arena.messages must be described here
         raise ValueError(f"arena.schemas: no JSON Schema for field kind {kind!r}")
     if meta["optional"]:

@@ -67,6 +67,11 @@ def register(subparsers) -> None:
     r.add_argument("--track-delay", type=float, default=None, metavar="S",
                    help="extra age of track poses (the tracker's own lag), s (default 0)")
     r.add_argument("--baud", type=int, default=None, help="serial baud rate (default 57600, the firmware's)")
+    r.add_argument("--link-timeout", type=float, default=None, metavar="S",
+                   help="a robot's link is down after S seconds without a frame from it (its 50-100 Hz "
+                        "telemetry is the heartbeat); default [services.bridge] link_timeout_s or 2.0, "
+                        "which rides out Bluetooth SPP stalls. The robot's own 300 ms motor watchdog "
+                        "stops it whenever motor commands stop, whatever this is")
     r.add_argument("--duration", type=float, default=None, help="stop after this many seconds (tests, demos)")
     r.add_argument("--require-all", action="store_true",
                    help="exit (code 1) if a robot's link cannot be opened at start-up, instead of retrying")
@@ -183,6 +188,16 @@ def run_service(args) -> int:
     o.baudrate = args.baud or int(opts.get("baudrate", o.baudrate))
     o.track_delay_s = args.track_delay if args.track_delay is not None else float(
         opts.get("track_delay_s", o.track_delay_s))
+    try:
+        o.link_timeout_s = float(args.link_timeout if args.link_timeout is not None
+                                 else opts.get("link_timeout_s", o.link_timeout_s))
+    except (TypeError, ValueError):
+        o.link_timeout_s = float("nan")
+    if not 0.05 <= o.link_timeout_s <= 60:
+        print(f"arena bridge run: --link-timeout (or [services.bridge] link_timeout_s) must be 0.05-60 s, "
+              f"got {args.link_timeout if args.link_timeout is not None else opts.get('link_timeout_s')!r}",
+              file=sys.stderr)
+        return 2
     name = args.name or f"bridge-{robots[0].name}"
     # the router watchdog: in client mode every message goes through the router, so losing it
     # means no e-stop can reach the robots any more

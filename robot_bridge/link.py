@@ -7,9 +7,23 @@ The same code drives ``/dev/rfcommN`` (Bluetooth SPP after ``rfcomm bind``),
 A reader thread opens the port, handshakes (HELLO -> HELLO_REPLY), then decodes frames
 and hands each one to ``on_frame(frame, host_time_ns, gap)`` where ``gap`` is the number
 of robot packets missing before it (from the 16-bit sequence numbers). It sends a PING
-every ``ping_interval_s`` and keeps the round-trip time. When the port fails or stays
-silent for ``silence_s`` it closes it and reconnects with exponential backoff; while
-down, :meth:`RobotLink.send` raises :class:`LinkDown` with the reason. A port that cannot be
+every ``ping_interval_s`` and keeps the round-trip time. When the port fails, or no good
+frame (the robot's 50-100 Hz telemetry is its heartbeat; pongs count too, garbage bytes do
+not) came for ``silence_s`` (default :data:`LINK_TIMEOUT_S`, ``--link-timeout``), it closes the
+port and reconnects with exponential backoff; while down, :meth:`RobotLink.send` raises
+:class:`LinkDown` with the reason.
+
+Why 2 s: Bluetooth SPP delivers in order but stalls while the radio retransmits; pauses of
+about half a second are common (the issue that set this, and e.g. HC-05 users' reports), so
+the old 0.5 s declared healthy links down and aborted missions (and did so at load 15 when the
+host, not the link, stalled). The radio itself gives up only after its link supervision
+timeout (20 s by default in Bluetooth Classic). 2 s is four such pauses and still quick for an
+operator; it is no safety limit: the robot's own 300 ms motor watchdog stops it whenever motor
+commands stop, whatever the host decides.
+
+Motor commands after a STOP: :meth:`RobotLink.stop_motors` also latches "no motors" under the
+write lock, so a control step that was half-way when STOP went out cannot put SET_MOTORS on the
+wire after it; :meth:`RobotLink.allow_motors` (a new mission) lifts the latch. A port that cannot be
 opened (a missing device, a refused socket, no HELLO_REPLY) is retried with the same backoff;
 each failed attempt is counted (``stats.open_failures``) and reported to ``on_open_error``.
 """
@@ -32,6 +46,8 @@ log = logging.getLogger("robot_bridge.link")
 
 #: longest wait for the first byte of a read (the reader then checks stop, silence and pings)
 READ_WAIT_S = 0.02
+#: default link timeout: no good frame for this long means the link is down, s (see above)
+LINK_TIMEOUT_S = 2.0
 
 
 def _fileno(port) -> int | None:
@@ -60,6 +76,8 @@ class LinkStats:
     crc_errors: int = 0
     framing_errors: int = 0
     other_rejected: int = 0      # wrong version / unknown type
+    clamped: int = 0             # decoded fields outside their physical range, clamped
+    motors_inhibited: int = 0    # SET_MOTORS refused because STOP was sent since the last mission start
     sent: int = 0
     rtt_ms: float | None = None  # last ping round trip
     rtt_ms_max: float = 0.0
@@ -79,7 +97,7 @@ class LinkStats:
                 "open_failures": self.open_failures, "frames": self.frames,
                 "telemetry": self.telemetry, "missing": self.missing, "crc_errors": self.crc_errors,
                 "framing_errors": self.framing_errors, "other_rejected": self.other_rejected,
-                "sent": self.sent, "rtt_ms": self.rtt_ms, "quality": round(self.quality, 5)}
+                "clamped": self.clamped, "motors_inhibited": self.motors_inhibited, "sent": self.sent, "rtt_ms": self.rtt_ms, "quality": round(self.quality, 5)}
 
 
 FrameCallback = Callable[[P.Frame, int, int], None]
@@ -97,7 +115,8 @@ class RobotLink:
         on_open_error: called from the reader thread with (reason, retry_in_s) after every
             attempt to open the port that failed (the link logs it as well).
         hello_timeout_s: how long to wait for HELLO_REPLY after opening.
-        silence_s: no byte for this long means the link is dead (telemetry is 50-100 Hz).
+        silence_s: no good frame for this long means the link is dead, s (telemetry is
+            50-100 Hz; see the module docstring for the default).
         backoff_s: (first, max) delay between reconnection attempts, s.
     """
 
@@ -105,8 +124,10 @@ class RobotLink:
                  on_frame: FrameCallback | None = None,
                  on_state: Callable[[bool, str], None] | None = None,
                  on_open_error: Callable[[str, float], None] | None = None,
-                 hello_timeout_s: float = 1.0, silence_s: float = 0.5, ping_interval_s: float = 1.0,
+                 hello_timeout_s: float = 1.0, silence_s: float = LINK_TIMEOUT_S, ping_interval_s: float = 1.0,
                  backoff_s: tuple[float, float] = (0.05, 2.0)):
+        if not (silence_s > 0 and silence_s < float("inf")):
+            raise ValueError(f"link timeout must be a positive number of seconds, got {silence_s}")
         self.url = url
         self.name = name
         self.baudrate = baudrate
@@ -123,6 +144,7 @@ class RobotLink:
         self.last_rx_ns = 0
         self._port = None
         self._tx_lock = threading.Lock()
+        self._motors_inhibited = False   # STOP was sent: no SET_MOTORS until allow_motors()
         self._stop = threading.Event()
         self._connected = threading.Event()
         self._attempted = threading.Event()   # the first attempt to open the port is over
@@ -181,18 +203,36 @@ class RobotLink:
             raise LinkDown(f"link to {self.name} ({self.url}) down: {self.last_error}")
         self._write(msg)
 
-    def set_motors(self, left: int, right: int) -> None:
-        """Motor power per side, -400..400 (also feeds the robot's 300 ms watchdog)."""
-        self.send(P.SetMotors(int(left), int(right)))
+    def set_motors(self, left: int, right: int) -> bool:
+        """Motor power per side, -400..400 (also feeds the robot's 300 ms watchdog). Returns
+        False (and sends nothing) after :meth:`stop_motors` until :meth:`allow_motors`."""
+        if not self.connected:
+            raise LinkDown(f"link to {self.name} ({self.url}) down: {self.last_error}")
+        return self._write(P.SetMotors(int(left), int(right)), motors=True)
 
     def stop_motors(self, repeat: int = 1) -> None:
-        """Send STOP ``repeat`` times (a corrupted frame is dropped, never retried)."""
+        """Send STOP ``repeat`` times (a corrupted frame is dropped, never retried), and refuse
+        SET_MOTORS from now on until :meth:`allow_motors` (latched even when the link is down)."""
+        with self._tx_lock:
+            self._motors_inhibited = True
         for _ in range(repeat):
             self.send(P.Stop())
 
-    # ------------------------------------------------------------------ internals
-    def _write(self, msg: P.Message, port=None) -> None:
+    def allow_motors(self) -> None:
+        """Lift the latch of :meth:`stop_motors` (a mission starts)."""
         with self._tx_lock:
+            self._motors_inhibited = False
+
+    @property
+    def motors_allowed(self) -> bool:
+        return not self._motors_inhibited
+
+    # ------------------------------------------------------------------ internals
+    def _write(self, msg: P.Message, port=None, motors: bool = False) -> bool:
+        with self._tx_lock:
+            if motors and self._motors_inhibited:
+                self.stats.motors_inhibited += 1
+                return False
             port = port or self._port
             if port is None:
                 raise LinkDown(f"link to {self.name} ({self.url}) down: {self.last_error}")
@@ -204,6 +244,7 @@ class RobotLink:
                 self.last_error = f"write failed: {exc}"
                 raise LinkDown(f"link to {self.name} ({self.url}) down: {self.last_error}") from exc
             self.stats.sent += 1
+            return True
 
     def _drop(self, reason: str, notify: bool) -> None:
         was = self._connected.is_set()
@@ -316,6 +357,10 @@ class RobotLink:
         self.stats.crc_errors += s.crc_errors - before.crc_errors
         self.stats.framing_errors += s.framing_errors - before.framing_errors
         self.stats.other_rejected += (s.version_errors - before.version_errors) + (s.unknown_type - before.unknown_type)
+        if s.clamped != before.clamped:
+            self.stats.clamped += s.clamped - before.clamped
+            log.warning("robot %s: %d decoded field(s) out of their physical range, clamped (%d so far)",
+                        self.name, s.clamped - before.clamped, self.stats.clamped)
 
     def _run(self) -> None:
         delay = self.backoff_s[0]
@@ -368,16 +413,18 @@ class RobotLink:
                 return
             now = time.monotonic()
             if chunk:
-                last_rx = now
-                self.last_rx_ns = time.time_ns()
                 before = P.DecoderStats(**vars(dec.stats))
                 frames = dec.feed(chunk)
                 self._count(dec, before)
                 now_ns = time.time_ns()
+                if frames:          # the heartbeat: good frames, not just bytes
+                    last_rx = now
+                    self.last_rx_ns = now_ns
                 for fr in frames:
                     self._handle(fr, now_ns)
-            elif now - last_rx > self.silence_s:
-                self._drop(f"no data for {self.silence_s:.1f} s", notify=True)
+            if now - last_rx > self.silence_s:
+                self._drop(f"no frame from the robot for {self.silence_s:.1f} s (link timeout; "
+                           "--link-timeout to change)", notify=True)
                 return
             if now >= next_ping:
                 next_ping = now + self.ping_interval_s

@@ -17,7 +17,14 @@ Patterns (``params`` keys in brackets, lengths in m, angles in degrees):
 * ``waypoints``: [points=[[x, y], ...]] turn to face each point, drive to it (arena frame).
 
 Any pattern takes ``pause_s`` and ``pause_every_m`` (stop-and-go: stand still
-``pause_s`` seconds after every ``pause_every_m`` of driving; 0 = never).
+``pause_s`` seconds after every ``pause_every_m`` of driving; 0 = after each driving phase).
+
+Every parameter is bounded physically (:class:`MissionLimits`, from the arena's size):
+lengths and radii by the arena's diagonal, laps, pauses, the waypoint count, the number of
+phases and the total path length by fixed caps. :func:`check_mission` applies them without
+building anything (its cost does not depend on the values asked for), so a hostile request
+such as ``pause_every_m=1e-6`` or ``laps=1e9`` is refused in microseconds, naming the
+parameter and its allowed range, before a single phase is laid out.
 """
 
 from __future__ import annotations
@@ -142,18 +149,60 @@ class Mission:
 # --------------------------------------------------------------------------- parameters
 
 
-def _num(params: dict, key: str, default: float, lo: float, hi: float) -> float:
+@dataclass(frozen=True)
+class MissionLimits:
+    """Physical bounds of mission parameters (see :meth:`for_arena`).
+
+    Attributes:
+        max_length_m: longest side_m / length_m, m (the arena's diagonal: nothing longer fits).
+        max_radius_m: largest radius_m, m (half the diagonal).
+        min_length_m: shortest side, length or radius, m (about the robot's own size).
+        arena_m: (x, y) size of the arena, m; waypoints must lie inside it (origin at a
+            corner). None: any waypoint with |x| and |y| up to ``max_length_m``.
+        max_laps: most laps of a pattern.
+        max_pause_s: longest stop-and-go pause, s.
+        min_pause_every_m: shortest stop-and-go step, m (0 = a pause after each phase).
+        max_waypoints: most waypoints of one mission.
+        max_segments: most phases of one mission (each is a state of the controller).
+        max_path_m: longest total path, m (about 18 min at full speed; the mission's scoring
+            resamples the path every mm).
+    """
+
+    max_length_m: float = 5.0
+    max_radius_m: float = 2.5
+    min_length_m: float = 0.05
+    arena_m: tuple[float, float] | None = None
+    max_laps: int = 100
+    max_pause_s: float = 60.0
+    min_pause_every_m: float = 0.05
+    max_waypoints: int = 256
+    max_segments: int = 10_000
+    max_path_m: float = 500.0
+
+    @classmethod
+    def for_arena(cls, size_m: tuple[float, float]) -> "MissionLimits":
+        """Limits for an arena of ``size_m`` (x, y), m: lengths up to its diagonal, radii up to
+        half of it, waypoints inside it."""
+        sx, sy = (float(v) for v in size_m)
+        diag = math.hypot(sx, sy)
+        return cls(max_length_m=round(diag, 3), max_radius_m=round(diag / 2, 3), arena_m=(sx, sy))
+
+
+DEFAULT_LIMITS = MissionLimits()
+
+
+def _num(params: dict, key: str, default: float, lo: float, hi: float, unit: str = "") -> float:
     v = params.get(key, default)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise MissionError(f"parameter {key} must be a number, got {v!r}")
     if not lo <= v <= hi:
-        raise MissionError(f"parameter {key}={v} out of range [{lo}, {hi}]")
+        raise MissionError(f"parameter {key}={v} out of range [{lo}, {hi}]{unit}")
     return float(v)
 
 
 def _int(params: dict, key: str, default: int, lo: int, hi: int) -> int:
     v = params.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or v != int(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v):
         raise MissionError(f"parameter {key} must be an integer, got {v!r}")
     if not lo <= v <= hi:
         raise MissionError(f"parameter {key}={v} out of range [{lo}, {hi}]")
@@ -194,9 +243,44 @@ _KNOWN = {
 _COMMON = {"pause_s", "pause_every_m"}
 
 
-def build_mission(pattern: str, params: dict[str, Any], start: Pose, speed_mps: float) -> Mission:
-    """Lay out ``pattern`` from the ``start`` pose (arena frame); raise :class:`MissionError`
-    for an unknown pattern, an unknown parameter or a value out of range."""
+@dataclass(frozen=True)
+class MissionSize:
+    """What :func:`check_mission` found: the phases and path length the mission will have."""
+
+    segments: int
+    length_m: float
+
+
+def _waypoints(params: dict, limits: MissionLimits) -> list[tuple[float, float]]:
+    pts = params.get("points")
+    if not isinstance(pts, (list, tuple)) or not pts:
+        raise MissionError("parameter points must be a non-empty list of [x, y] in metres")
+    if len(pts) > limits.max_waypoints:
+        raise MissionError(f"parameter points has {len(pts)} waypoints; at most {limits.max_waypoints}")
+    if limits.arena_m is not None:
+        (xlo, xhi), (ylo, yhi) = (0.0, limits.arena_m[0]), (0.0, limits.arena_m[1])
+    else:
+        xlo = ylo = -limits.max_length_m
+        xhi = yhi = limits.max_length_m
+    out = []
+    for k, p in enumerate(pts):
+        if (not isinstance(p, (list, tuple)) or len(p) != 2
+                or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in p)):
+            raise MissionError(f"points[{k}] must be [x, y] in metres, got {p!r}")
+        if not (xlo <= p[0] <= xhi and ylo <= p[1] <= yhi):
+            raise MissionError(f"points[{k}]={list(p)} outside the arena: x in [{xlo}, {xhi}], "
+                               f"y in [{ylo}, {yhi}] m")
+        out.append((float(p[0]), float(p[1])))
+    return out
+
+
+def check_mission(pattern: str, params: dict[str, Any], limits: MissionLimits = DEFAULT_LIMITS,
+                  start: Pose | None = None) -> MissionSize:
+    """Validate ``params`` of ``pattern`` against ``limits`` without laying anything out (pure,
+    cost independent of the values: O(number of waypoints)); raise :class:`MissionError` naming
+    the parameter and its allowed range. Returns the number of phases and the path length the
+    mission will have (``start`` is needed for an exact waypoint length; without it the path is
+    measured from the first waypoint)."""
     if pattern not in _KNOWN:
         raise MissionError(f"unknown mission {pattern!r}; choose one of {', '.join(PATTERNS)}")
     if not isinstance(params, dict):
@@ -205,6 +289,62 @@ def build_mission(pattern: str, params: dict[str, Any], start: Pose, speed_mps: 
     if unknown:
         raise MissionError(f"unknown parameter(s) for {pattern}: {', '.join(sorted(unknown))}; "
                            f"accepted: {', '.join(sorted(_KNOWN[pattern] | _COMMON))}")
+    lim = limits
+    pause_s = _num(params, "pause_s", 0.0, 0.0, lim.max_pause_s, " s")
+    every = _num(params, "pause_every_m", 0.0, 0.0, lim.max_path_m, " m")
+    if 0 < every < lim.min_pause_every_m:
+        raise MissionError(f"parameter pause_every_m={every} out of range: 0 (a pause after each phase) or "
+                           f"[{lim.min_pause_every_m}, {lim.max_path_m}] m")
+    drives: list[tuple[float, int]] = []   # (length of a driving phase, how many such phases)
+    turns = 0
+    if pattern in ("circle", "figure8"):
+        r = _num(params, "radius_m", 0.3 if pattern == "circle" else 0.25, lim.min_length_m, lim.max_radius_m, " m")
+        if pattern == "circle":
+            _direction(params)
+        laps = _int(params, "laps", 1, 1, lim.max_laps)
+        drives.append((2 * math.pi * r, laps * (1 if pattern == "circle" else 2)))
+    elif pattern == "square":
+        side = _num(params, "side_m", 0.6, lim.min_length_m, lim.max_length_m, " m")
+        _direction(params)
+        laps = _int(params, "laps", 1, 1, lim.max_laps)
+        drives.append((side, 4 * laps))
+        turns = 4 * laps
+    elif pattern == "back_and_forth":
+        length = _num(params, "length_m", 0.6, lim.min_length_m, lim.max_length_m, " m")
+        laps = _int(params, "laps", 1, 1, lim.max_laps)
+        drives.append((length, 2 * laps))
+        turns = 2 * laps
+    else:
+        pts = _waypoints(params, lim)
+        prev = tuple(start[:2]) if start is not None else pts[0]
+        for p in pts:
+            d = math.hypot(p[0] - prev[0], p[1] - prev[1])
+            if d >= 1e-3:
+                drives.append((d, 1))
+                turns += 1
+            prev = p
+    length_m = sum(d * n for d, n in drives)
+    if length_m > lim.max_path_m:
+        raise MissionError(f"mission path of {length_m:.1f} m exceeds {lim.max_path_m:.0f} m: "
+                           "fewer laps or shorter sides")
+    segments = turns
+    for d, n in drives:
+        pieces = max(1, math.ceil(d / every - 1e-9)) if (pause_s > 0 and every > 0) else 1
+        segments += n * pieces * (2 if pause_s > 0 else 1)
+        if segments > lim.max_segments:
+            break
+    if segments > lim.max_segments:
+        raise MissionError(f"mission would have {segments}{'+' if segments > lim.max_segments else ''} phases, "
+                           f"at most {lim.max_segments}: fewer laps or a longer pause_every_m")
+    return MissionSize(segments, length_m)
+
+
+def build_mission(pattern: str, params: dict[str, Any], start: Pose, speed_mps: float,
+                  limits: MissionLimits = DEFAULT_LIMITS) -> Mission:
+    """Lay out ``pattern`` from the ``start`` pose (arena frame); raise :class:`MissionError`
+    for an unknown pattern, an unknown parameter or a value out of ``limits`` (checked by
+    :func:`check_mission` first, so the work done here is bounded)."""
+    check_mission(pattern, params, limits, start)
     x, y, th = (float(v) for v in start)
     segs: list[Segment] = []
 
@@ -212,39 +352,34 @@ def build_mission(pattern: str, params: dict[str, Any], start: Pose, speed_mps: 
         p = segs[-1].end if segs else (x, y, th)
         segs.append(Segment(kind, p, label=label, **kw))
 
+    laps = int(params.get("laps", 1))
     if pattern == "circle":
-        r = _num(params, "radius_m", 0.3, 0.05, 5.0)
+        r = float(params.get("radius_m", 0.3))
         sign = _direction(params)
-        for lap in range(_int(params, "laps", 1, 1, 100)):
+        for lap in range(laps):
             add("arc", f"lap {lap + 1}", length_m=2 * math.pi * r, curvature=sign / r)
     elif pattern == "square":
-        side = _num(params, "side_m", 0.6, 0.05, 5.0)
+        side = float(params.get("side_m", 0.6))
         sign = _direction(params)
-        for lap in range(_int(params, "laps", 1, 1, 100)):
+        for lap in range(laps):
             for k in range(4):
                 n = 4 * lap + k + 1
                 add("line", f"side {n}", length_m=side)
                 add("turn", f"turn {n}", turn_rad=sign * math.pi / 2)
     elif pattern == "figure8":
-        r = _num(params, "radius_m", 0.25, 0.05, 5.0)
-        for lap in range(_int(params, "laps", 1, 1, 100)):
+        r = float(params.get("radius_m", 0.25))
+        for lap in range(laps):
             add("arc", f"lap {lap + 1} left", length_m=2 * math.pi * r, curvature=1.0 / r)
             add("arc", f"lap {lap + 1} right", length_m=2 * math.pi * r, curvature=-1.0 / r)
     elif pattern == "back_and_forth":
-        length = _num(params, "length_m", 0.6, 0.05, 5.0)
-        for lap in range(_int(params, "laps", 1, 1, 100)):
+        length = float(params.get("length_m", 0.6))
+        for lap in range(laps):
             add("line", f"out {lap + 1}", length_m=length)
             add("turn", f"turn {2 * lap + 1}", turn_rad=math.pi)
             add("line", f"back {lap + 1}", length_m=length)
             add("turn", f"turn {2 * lap + 2}", turn_rad=math.pi)
     elif pattern == "waypoints":
-        pts = params.get("points")
-        if not isinstance(pts, (list, tuple)) or not pts:
-            raise MissionError("parameter points must be a non-empty list of [x, y] in metres")
-        for k, p in enumerate(pts):
-            if (not isinstance(p, (list, tuple)) or len(p) != 2
-                    or not all(isinstance(c, (int, float)) and math.isfinite(c) for c in p)):
-                raise MissionError(f"points[{k}] must be [x, y] in metres, got {p!r}")
+        for k, p in enumerate(_waypoints(params, limits)):
             cx, cy, cth = segs[-1].end if segs else (x, y, th)
             dx, dy = p[0] - cx, p[1] - cy
             dist = math.hypot(dx, dy)
@@ -257,7 +392,7 @@ def build_mission(pattern: str, params: dict[str, Any], start: Pose, speed_mps: 
         if not segs:
             raise MissionError("all waypoints coincide with the start position")
 
-    segs = _with_pauses(segs, _num(params, "pause_s", 0.0, 0.0, 60.0), _num(params, "pause_every_m", 0.0, 0.0, 100.0))
+    segs = _with_pauses(segs, float(params.get("pause_s", 0.0)), float(params.get("pause_every_m", 0.0)))
     return Mission(pattern, dict(params), segs, float(speed_mps), (x, y, th))
 
 

@@ -16,11 +16,15 @@ A packet on the wire is ``COBS(header + body + crc16) + b"\\x00"``:
 
 :class:`StreamDecoder` turns arbitrary byte chunks (split anywhere, garbage between
 frames) into :class:`Frame` objects; anything that fails COBS, length, version or
-CRC checks is counted in :class:`DecoderStats`, never returned as data.
+CRC checks is counted in :class:`DecoderStats`, never returned as data. A well-formed
+packet whose field lies outside its physical range (a motor power of -5750 where the motors
+take -400..400) is returned with the field clamped to that range (:data:`PHYSICAL_RANGES`),
+and counted (``Frame.clamped``, ``DecoderStats.clamped``): consumers never see such values.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
 from dataclasses import dataclass, field
@@ -404,17 +408,42 @@ MESSAGE_TYPES: dict[int, type] = {
 }
 
 
+#: Decoded fields whose physical range is narrower than their wire type: clamped on decode.
+PHYSICAL_RANGES: dict[type, tuple[tuple[str, int, int], ...]] = {
+    SetMotors: (("left", -MAX_POWER, MAX_POWER), ("right", -MAX_POWER, MAX_POWER)),
+    Telemetry: (("motor_left", -MAX_POWER, MAX_POWER), ("motor_right", -MAX_POWER, MAX_POWER)),
+}
+
+
+def clamp_fields(msg: Message) -> tuple[Message, int]:
+    """``msg`` with every field of :data:`PHYSICAL_RANGES` clamped into its range, and how many
+    fields were out of range (0: ``msg`` itself)."""
+    ranges = PHYSICAL_RANGES.get(type(msg))
+    if not ranges:
+        return msg, 0
+    fixed = {}
+    for name, lo, hi in ranges:
+        v = getattr(msg, name)
+        if v < lo or v > hi:
+            fixed[name] = min(max(v, lo), hi)
+    if not fixed:
+        return msg, 0
+    return dataclasses.replace(msg, **fixed), len(fixed)
+
+
 @dataclass(frozen=True)
 class Frame:
     """One decoded packet: header fields and the message.
 
     ``seq`` is the sender's 16-bit packet counter (wraps), ``time_us`` the sender's
-    32-bit microsecond clock (wraps)."""
+    32-bit microsecond clock (wraps); ``clamped`` counts the message's fields that were out of
+    their physical range and were clamped (see :func:`clamp_fields`)."""
 
     seq: int
     time_us: int
     msg: Message
     version: int = PROTOCOL_VERSION
+    clamped: int = 0
 
 
 def encode_packet(msg: Message, seq: int, time_us: int, version: int = PROTOCOL_VERSION) -> bytes:
@@ -450,7 +479,8 @@ def decode_packet(packet: bytes) -> Frame:
     body = data[HEADER_SIZE:]
     if len(body) != cls.FMT.size:
         raise ProtocolError(f"{cls.__name__} body of {len(body)} bytes, expected {cls.FMT.size}")
-    return Frame(seq, time_us, cls.unpack(body), version)
+    msg, clamped = clamp_fields(cls.unpack(body))
+    return Frame(seq, time_us, msg, version, clamped)
 
 
 @dataclass
@@ -462,6 +492,7 @@ class DecoderStats:
     framing_errors: int = 0  # bad COBS, too short, too long
     version_errors: int = 0  # wrong protocol version
     unknown_type: int = 0    # unknown message type or wrong body length
+    clamped: int = 0         # fields of good frames out of their physical range, clamped
     bytes_in: int = 0
 
     @property
@@ -536,6 +567,7 @@ class StreamDecoder:
             self.stats.unknown_type += 1
             return None
         self.stats.frames += 1
+        self.stats.clamped += frame.clamped
         return frame
 
 

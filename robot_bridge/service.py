@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+import queue
 import threading
 import time
 from dataclasses import dataclass, field
@@ -39,9 +40,9 @@ from arena.messages import Command, CommandReply, MessageError, MissionCommand, 
 
 from . import protocol as P
 from .control import MissionRunner, PoseEstimator, compose, inverse, path_error
-from .link import LinkDown, RobotLink
+from .link import LINK_TIMEOUT_S, LinkDown, RobotLink
 from .logs import MissionLog, Sample
-from .missions import MissionError, build_mission, mission_speed
+from .missions import MissionError, MissionLimits, build_mission, check_mission, mission_speed
 from .odometry import Odometry, WheelGeometry
 
 log = logging.getLogger("robot_bridge")
@@ -67,6 +68,8 @@ class BridgeOptions:
             pipeline's own lag, measured once against ground truth).
         baudrate: serial baud rate (the firmware's 57600).
         estop_repeats: STOP frames sent on an e-stop.
+        link_timeout_s: a robot's link is down after this long without a good frame from it, s
+            (``--link-timeout``, lab ``link_timeout_s``; see ``robot_bridge.link``).
     """
 
     arena_size_m: tuple[float, float] = (1.83, 1.83)
@@ -78,6 +81,7 @@ class BridgeOptions:
     track_delay_s: float = 0.0
     baudrate: int = 57600
     estop_repeats: int = 3
+    link_timeout_s: float = LINK_TIMEOUT_S
     max_log_bytes: int = 50 * 1024 * 1024
 
 
@@ -93,20 +97,29 @@ class RobotSetup:
 class RobotHandle:
     """State, missions and safety of one robot (no Zenoh inside; ``publish`` is injected).
 
-    Thread-safe: link frames, tracks and commands arrive on different threads.
+    Thread-safe: link frames, tracks and commands arrive on different threads. ``lock`` guards
+    the mission state and is held by every control step. Missions are laid out by this robot's
+    own worker thread (:meth:`submit`), outside ``lock`` (the layout of a long mission takes tens
+    of ms). Stop and e-stop never wait for ``lock``: they bump the stop generation, send STOP
+    (which latches "no motors" in the link, see :meth:`RobotLink.stop_motors`) and leave the
+    ending of the mission (its log, its path error) to the worker and to the next control step.
     """
+
+    #: missions waiting for the worker, at most (more are refused as busy)
+    MAX_PENDING_MISSIONS = 4
 
     def __init__(self, setup: RobotSetup, options: BridgeOptions, publish=None, on_error=None,
                  on_open_error=None):
         self.name = setup.name
         self.geometry = setup.geometry
         self.opt = options
+        self.limits = MissionLimits.for_arena(options.arena_size_m)
         self.publish = publish
         self.on_error = on_error or (lambda msg: log.warning("%s", msg))
         self.lock = threading.RLock()
         self.link = RobotLink(setup.url, setup.name, baudrate=options.baudrate,
                               on_frame=self._on_frame, on_state=self._on_link_state,
-                              on_open_error=on_open_error)
+                              on_open_error=on_open_error, silence_s=options.link_timeout_s)
         self.odometry = Odometry(self.geometry)
         self.estimator = PoseEstimator(stale_s=options.track_stale_s, delay_s=options.track_delay_s)
         self.runner: MissionRunner | None = None
@@ -127,36 +140,114 @@ class RobotHandle:
         self.battery_mv = 0
         self.halting = False   # the bridge is closing: STOP was sent, no more motor commands
         self.holding = False   # STOP was sent; no motor commands until stop() ends the mission
+        # stop generation: every stop/e-stop bumps it; a mission laid out before a stop never starts,
+        # and a running mission whose generation is old is ended by the next control step
+        self._cmd_lock = threading.Lock()   # held only for a few assignments, never while waiting
+        self._gen = 0
+        self._run_gen = 0
+        self._stop_reason = ""
+        self._jobs: queue.Queue = queue.Queue()
+        self._pending_missions = 0
+        self._worker: threading.Thread | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
+        if self._worker is None:
+            self._worker = threading.Thread(target=self._work, name=f"missions-{self.name}", daemon=True)
+            self._worker.start()
         self.link.start()
 
     def halt(self) -> None:
         """Stop the robot and close its mission log (the link stays open)."""
+        with self._cmd_lock:
+            self._gen += 1
         with self.lock:
             self._end_mission("interrupted: bridge shut down")
         self._stop_motors()
 
     def close(self) -> None:
-        """Stop the robot, close its mission log and its link."""
+        """Stop the robot, close its mission log, its worker and its link."""
         self.halt()
+        self._stop_worker()
         self.link.close()
 
+    def _stop_worker(self) -> None:
+        if self._worker is not None:
+            self._jobs.put(None)
+            self._worker.join(timeout=2.0)
+            self._worker = None
+
+    def _work(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            try:
+                job()
+            except Exception:  # noqa: BLE001 - a job bug must not end the worker
+                log.exception("robot %s: command job failed", self.name)
+
+    def submit(self, job, mission: bool = False) -> bool:
+        """Run ``job()`` on this robot's worker thread, after the jobs before it. A mission job is
+        refused (False) while :attr:`MAX_PENDING_MISSIONS` wait already."""
+        if mission:
+            with self._cmd_lock:
+                if self._pending_missions >= self.MAX_PENDING_MISSIONS:
+                    return False
+                self._pending_missions += 1
+
+            def counted(job=job):
+                try:
+                    job()
+                finally:
+                    with self._cmd_lock:
+                        self._pending_missions -= 1
+            self._jobs.put(counted)
+        else:
+            self._jobs.put(job)
+        return True
+
+    @property
+    def generation(self) -> int:
+        """The stop generation (see the class docstring): take it when a mission request arrives."""
+        return self._gen
+
     # ------------------------------------------------------------------ commands
-    def start_mission(self, cmd: MissionCommand) -> dict:
-        """Build and start ``cmd``; returns reply details or raises :class:`CommandError`."""
+    def _refuse_if_not_ready(self) -> None:
+        """Raise :class:`CommandError` if no mission may start now (lock held)."""
+        if self.estop:
+            raise CommandError(f"e-stop latched on {self.name}: send 'clear' first")
+        if not self.link.connected:
+            raise CommandError(f"link down: {self.name}: {self.link.last_error}")
+        if self.runner is not None:
+            raise CommandError(f"busy: {self.name} runs mission {self.mission_id} ({self.runner.phase}); "
+                               "send 'stop' first")
+        if 0 < self.battery_mv < self.opt.low_battery_mv:
+            raise CommandError(f"low battery: {self.name} at {self.battery_mv} mV "
+                               f"(< {self.opt.low_battery_mv} mV): charge it first")
+
+    def check(self, cmd: MissionCommand) -> None:
+        """The pure checks of ``cmd`` (its parameters against this arena's limits, its speed):
+        cheap whatever the values, so the command callback runs them before queueing anything.
+        Raises :class:`CommandError`."""
+        params = dict(cmd.params)
+        params.pop("start_pose", None)
+        try:
+            mission_speed(cmd.power, cmd.speed_mps, self.geometry.max_speed_mps)
+            check_mission(cmd.mission, params, self.limits)
+        except MissionError as exc:
+            raise CommandError(f"bad parameter: {exc}") from None
+
+    def start_mission(self, cmd: MissionCommand, generation: int | None = None) -> dict:
+        """Check, lay out and start ``cmd``; returns reply details or raises :class:`CommandError`.
+
+        The parameters are checked first (:meth:`check`, bounded work), the mission is laid out
+        without holding :attr:`lock`, and it starts only if no stop or e-stop came since
+        ``generation`` (default: now) -- the stop generation taken when the request arrived."""
+        gen = self._gen if generation is None else generation
+        self.check(cmd)
         with self.lock:
-            if self.estop:
-                raise CommandError(f"e-stop latched on {self.name}: send 'clear' first")
-            if not self.link.connected:
-                raise CommandError(f"link down: {self.name}: {self.link.last_error}")
-            if self.runner is not None:
-                raise CommandError(f"busy: {self.name} runs mission {self.mission_id} ({self.runner.phase}); "
-                                   "send 'stop' first")
-            if 0 < self.battery_mv < self.opt.low_battery_mv:
-                raise CommandError(f"low battery: {self.name} at {self.battery_mv} mV "
-                                   f"(< {self.opt.low_battery_mv} mV): charge it first")
+            self._refuse_if_not_ready()
             # A standing robot is invisible to an event camera, so any track since the bridge
             # started will do: the fused pose has been carried on by odometry (which does not
             # drift while the robot stands).
@@ -176,17 +267,27 @@ class RobotHandle:
                                    "and none came yet (a standing robot gives no events: drive it a little, "
                                    "e.g. a short paper mission), give params start_pose=[x, y, yaw], "
                                    "or use control=paper")
-            try:
-                speed = mission_speed(cmd.power, cmd.speed_mps, self.geometry.max_speed_mps)
-                start = self.estimator.pose()
-                mission = build_mission(cmd.mission, params, start, speed)
-            except MissionError as exc:
-                raise CommandError(f"bad parameter: {exc}") from None
-            if fresh or known_start is not None:
-                self._check_inside(mission)
+            start = self.estimator.pose()
+        # laid out outside the lock: control steps and telemetry go on meanwhile
+        try:
+            speed = mission_speed(cmd.power, cmd.speed_mps, self.geometry.max_speed_mps)
+            mission = build_mission(cmd.mission, params, start, speed, self.limits)
+        except MissionError as exc:
+            raise CommandError(f"bad parameter: {exc}") from None
+        if fresh or known_start is not None:
+            self._check_inside(mission)
+        runner = MissionRunner(mission, self.geometry, mode=cmd.control, estimator=self.estimator,
+                               odometry=self.odometry)
+        with self.lock:
+            self._refuse_if_not_ready()          # again: things may have changed meanwhile
+            with self._cmd_lock:
+                if self._gen != gen:
+                    raise CommandError(f"stopped: a stop or e-stop for {self.name} came after this mission "
+                                       "was sent and before it started; send it again")
+                self._run_gen = gen
+                self.link.allow_motors()
             mission_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{cmd.mission}"
-            self.runner = MissionRunner(mission, self.geometry, mode=cmd.control, estimator=self.estimator,
-                                        odometry=self.odometry)
+            self.runner = runner
             self.mission_id = mission_id
             self.start_at_ns = cmd.start_ns
             self._trace_odo, self._trace_track = [], []
@@ -212,41 +313,49 @@ class RobotHandle:
                                f"{mission.start[1]:.2f}) spans x {x0:.2f}..{x1:.2f} y {y0:.2f}..{y1:.2f} m and "
                                f"leaves the arena (0..{sx}, 0..{sy} m, margin {m} m)")
 
+    def _cancel(self, reason: str, repeat: int = 1) -> tuple[str | None, bool]:
+        """Bump the stop generation, send STOP (latching "no motors" in the link) and have the
+        mission ended by the worker (after the jobs queued before) or by the next control step,
+        whichever comes first. Never waits for :attr:`lock`. Returns (mission id, STOP sent)."""
+        with self._cmd_lock:
+            self._gen += 1
+            self._stop_reason = reason
+        sent = self._stop_motors(repeat)
+        had = self.mission_id
+
+        def end():
+            with self.lock:
+                self._end_mission(reason)
+                self.holding = False
+            self._stop_motors(repeat)
+        self.submit(end)
+        return had, sent
+
     def stop(self, reason: str = "stopped by command") -> dict:
-        """Stop the motors at once, then end the mission (if any)."""
-        self._stop_motors()
-        with self.lock:
-            had = self.mission_id
-            self._end_mission(reason)
-            self.holding = False
-        self._stop_motors()
+        """Stop the motors at once; the mission (if any) ends right after (see :meth:`_cancel`)."""
+        had, _ = self._cancel(reason)
         return {"stopped_mission": had}
 
     def hold(self) -> bool:
         """Send STOP now and command no motors until :meth:`stop` ends the mission: the first
         step of stopping several robots at once (ending a mission writes its log, which takes
         long enough that the last robot of a fleet stopped one by one kept driving)."""
-        with self.lock:    # no control step is half-way: the next one sees the flag
-            self.holding = True
+        self.holding = True
         return self._stop_motors()
 
     def emergency_stop(self) -> dict:
         """Stop now and latch: no mission starts until :meth:`clear`.
 
-        The latch is set and STOP sent before taking the lock (a control step in progress
-        cannot delay it); STOP is sent again once the mission is ended."""
+        The latch is set and STOP sent without taking the lock (a control step or a mission
+        being laid out cannot delay it, and no SET_MOTORS can follow the STOP); the mission ends
+        right after, on the worker or at the next control step."""
         self.estop = True
-        sent = self._stop_motors(self.opt.estop_repeats)
-        with self.lock:
-            had = self.mission_id
-            self._end_mission("e-stop")
-        sent = self._stop_motors(self.opt.estop_repeats) or sent
+        had, sent = self._cancel("e-stop", self.opt.estop_repeats)
         return {"stopped_mission": had, "latched": True, "stop_sent": sent}
 
     def clear(self) -> dict:
-        with self.lock:
-            was = self.estop
-            self.estop = False
+        was = self.estop
+        self.estop = False
         return {"was_latched": was}
 
     def set_led(self, rgb) -> dict:
@@ -263,7 +372,8 @@ class RobotHandle:
 
     # ------------------------------------------------------------------ internals
     def _stop_motors(self, repeat: int = 1) -> bool:
-        """Send STOP; False when the link is down (the robot's 300 ms watchdog stops it)."""
+        """Send STOP (and latch "no motors" in the link); False when the link is down (the
+        robot's 300 ms watchdog stops it)."""
         try:
             self.link.stop_motors(repeat)
             return True
@@ -371,6 +481,10 @@ class RobotHandle:
             self._end_mission("e-stop")
             self._stop_motors(self.opt.estop_repeats)
             return "e-stop"
+        if self._gen != self._run_gen:     # a stop came: end it here if the worker has not yet
+            self._end_mission(self._stop_reason or "stopped")
+            self._stop_motors()
+            return "stopped"
         if 0 < tel.battery_mv < self.opt.low_battery_mv:
             self.on_error(f"robot {self.name}: battery {tel.battery_mv} mV < {self.opt.low_battery_mv} mV: mission stopped")
             self._end_mission(f"aborted: low battery ({tel.battery_mv} mV)")
@@ -389,10 +503,10 @@ class RobotHandle:
             self._end_mission("finished")
             self._stop_motors()
             return "done"
-        if self.halting or self.holding:
+        if self.halting or self.holding or self._gen != self._run_gen:
             return out.phase
         try:
-            self.link.set_motors(out.left, out.right)
+            self.link.set_motors(out.left, out.right)   # refused by the link after a STOP
         except LinkDown:
             pass  # the link-state callback ends the mission
         return out.phase
@@ -563,6 +677,7 @@ class Bridge:
             self.svc.gauge(f"{name}.rtt_ms", round(st.rtt_ms, 2) if st.rtt_ms is not None else -1)
             self.svc.gauge(f"{name}.quality", round(st.quality, 4))
             self.svc.gauge(f"{name}.crc_errors", st.crc_errors)
+            self.svc.gauge(f"{name}.clamped", st.clamped)
             self.svc.gauge(f"{name}.missing", st.missing)
             self.svc.gauge(f"{name}.phase", h.runner.phase if h.runner else ("e-stop" if h.estop else "idle"))
             self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
@@ -592,6 +707,10 @@ class Bridge:
             h.on_track(track, now)
 
     def _on_query(self, query) -> None:
+        """The command callback: decode and check, then act. Stop, e-stop, clear and LED are
+        carried out here (none waits for a robot's lock); a mission that passes the pure checks
+        is laid out and started by its robot's worker thread, which then replies (the query is
+        answered once every robot it names has replied)."""
         key = str(query.key_expr)
         try:
             robot, verb = parse_cmd_key(key)
@@ -607,21 +726,60 @@ class Bridge:
         if robot != "all" and robot not in self.handles:
             return    # another bridge's robot (or nobody's): no reply, see the module docstring
         targets = list(self.handles) if robot == "all" else [robot]
+        payload = query.payload.to_bytes() if query.payload is not None else b""
         if verb in ("stop", "estop") and len(targets) > 1:
             for name in targets:   # every robot stops before any mission log is closed
                 h = self.handles[name]
                 if verb == "estop":
                     h.estop = True
                 h._stop_motors(self.opt.estop_repeats if verb == "estop" else 1)
+        if verb != "mission":
+            for name in targets:
+                self._reply(query, self.execute(name, verb, payload))
+            return
+        try:
+            cmd = MissionCommand.decode(payload)
+        except MessageError as exc:
+            for name in targets:
+                self._reply(query, self._refused(name, verb, f"bad parameter: {exc}"))
+            return
+        pending = _PendingQuery(query, len(targets))
         for name in targets:
-            reply = self.execute(name, verb, query.payload.to_bytes() if query.payload is not None else b"")
+            h = self.handles[name]
             try:
-                query.reply(query.key_expr, reply.encode())
-            except Exception as exc:  # noqa: BLE001 - the querier may have gone
-                self._error(f"reply to {verb} for {name} failed: {exc}")
+                h.check(cmd)
+            except CommandError as exc:
+                pending.reply(self, self._refused(name, verb, str(exc)))
+                continue
+            gen = h.generation     # a stop after this moment cancels this mission
+            job = (lambda name=name, gen=gen: pending.reply(self, self._mission(name, cmd, gen)))
+            if not h.submit(job, mission=True):
+                pending.reply(self, self._refused(name, verb, f"busy: {name} has "
+                                                              f"{h.MAX_PENDING_MISSIONS} missions waiting to start"))
+
+    def _reply(self, query, reply: CommandReply) -> None:
+        try:
+            query.reply(query.key_expr, reply.encode())
+        except Exception as exc:  # noqa: BLE001 - the querier may have gone
+            self._error(f"reply to {reply.verb} for {reply.robot} failed: {exc}")
+
+    def _refused(self, robot: str, verb: str, error: str) -> CommandReply:
+        if self.svc is not None:
+            self.svc.count("commands_refused")
+        return CommandReply(ok=False, robot=robot, verb=verb, error=error)
+
+    def _mission(self, robot: str, cmd: MissionCommand, generation: int | None = None) -> CommandReply:
+        try:
+            detail = self.handles[robot].start_mission(cmd, generation)
+        except CommandError as exc:
+            return self._refused(robot, "mission", str(exc))
+        if self.svc is not None:
+            self.svc.count("commands_ok")
+        return CommandReply(ok=True, robot=robot, verb="mission", detail=detail)
 
     def execute(self, robot: str, verb: str, payload: bytes) -> CommandReply:
-        """Carry out one command for one robot and build the reply (never raises)."""
+        """Carry out one command for one robot and build the reply (never raises). A mission is
+        laid out and started on the calling thread (the command callback uses the robot's worker)."""
         h = self.handles.get(robot)
         if h is None:
             return CommandReply(ok=False, robot=robot, verb=verb,
@@ -629,35 +787,54 @@ class Bridge:
         if verb not in COMMAND_VERBS:
             return CommandReply(ok=False, robot=robot, verb=verb,
                                 error=f"bad parameter: unknown verb {verb!r}; expected {', '.join(COMMAND_VERBS)}")
+        if verb == "mission":
+            try:
+                cmd = MissionCommand.decode(payload)
+            except MessageError as exc:
+                return self._refused(robot, verb, f"bad parameter: {exc}")
+            return self._mission(robot, cmd)
         try:
-            if verb == "mission":
+            params: dict = {}
+            if payload:
                 try:
-                    cmd = MissionCommand.decode(payload)
+                    params = Command.decode(payload).params
                 except MessageError as exc:
                     raise CommandError(f"bad parameter: {exc}") from None
-                detail = h.start_mission(cmd)
+            if verb == "stop":
+                detail = h.stop()
+            elif verb == "estop":
+                detail = h.emergency_stop()
+            elif verb == "clear":
+                detail = h.clear()
             else:
-                params: dict = {}
-                if payload:
-                    try:
-                        params = Command.decode(payload).params
-                    except MessageError as exc:
-                        raise CommandError(f"bad parameter: {exc}") from None
-                if verb == "stop":
-                    detail = h.stop()
-                elif verb == "estop":
-                    detail = h.emergency_stop()
-                elif verb == "clear":
-                    detail = h.clear()
-                else:
-                    detail = h.set_led(params.get("rgb"))
+                detail = h.set_led(params.get("rgb"))
         except CommandError as exc:
-            if self.svc is not None:
-                self.svc.count("commands_refused")
-            return CommandReply(ok=False, robot=robot, verb=verb, error=str(exc))
+            return self._refused(robot, verb, str(exc))
         if self.svc is not None:
             self.svc.count("commands_ok")
         return CommandReply(ok=True, robot=robot, verb=verb, detail=detail)
+
+
+class _PendingQuery:
+    """A query that ``n`` robots answer, maybe from their worker threads: finalised (Zenoh's
+    final reply, so the querier need not wait for its timeout) after the last one."""
+
+    def __init__(self, query, n: int):
+        self.query = query
+        self.left = n
+        self._lock = threading.Lock()
+
+    def reply(self, bridge: "Bridge", reply: CommandReply) -> None:
+        bridge._reply(self.query, reply)
+        with self._lock:
+            self.left -= 1
+            last = self.left == 0
+        if last:
+            try:
+                with self.query:     # leaving the context finalises the query
+                    pass
+            except Exception:  # noqa: BLE001 - the querier may have gone
+                pass
 
 
 def parse_cmd_key(key: str) -> tuple[str, str]:

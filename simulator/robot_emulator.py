@@ -15,7 +15,11 @@ The world is stepped by someone else; this class only reads and commands it.
 Link faults (:class:`LinkFaults`) model a Bluetooth SPP link: latency with jitter in
 both directions (in-order delivery), and on the robot -> host direction random byte
 loss and frame corruption; ``disconnect_after_s`` drops every connection after that
-long. What was injected is counted in :attr:`RobotEmulatorServer.stats`.
+long; :meth:`RobotEmulatorServer.pause_output` holds every robot -> host byte for a while and
+then delivers them in a burst (an SPP link stalling while the radio retransmits). What was
+injected is counted in :attr:`RobotEmulatorServer.stats`. Host frames with a field outside its
+physical range (SET_MOTORS -5750) are clamped by the decoder, as the firmware's ``constrain``
+does, and counted (``stats.rx_clamped``).
 """
 
 from __future__ import annotations
@@ -85,6 +89,8 @@ class EmulatorStats:
     disconnects: int = 0          # connections closed by disconnect_after_s or disconnect()
     commands: int = 0             # valid host frames handled
     rx_rejected: int = 0          # host frames rejected by CRC/framing
+    rx_clamped: int = 0           # fields of host frames out of their physical range, clamped
+    output_pauses: int = 0        # pause_output() calls
     watchdog_trips: int = 0
     last_command_t: float = 0.0   # monotonic time of the last valid SET_MOTORS/STOP
     watchdog_stop_t: float = 0.0  # monotonic time the watchdog last stopped the motors
@@ -153,6 +159,7 @@ class RobotEmulatorServer:
         self._last_motor_cmd = 0.0
         self._flags = 0
         self._led = (0, 0, 0)
+        self._tx_hold_until = 0.0     # pause_output(): robot -> host bytes wait until then
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -215,6 +222,15 @@ class RobotEmulatorServer:
             if self._conn is not None:
                 self._close_conn(count=True)
 
+    def pause_output(self, seconds: float) -> None:
+        """Hold every robot -> host byte for ``seconds`` from now, then deliver them in order (an
+        SPP link that stalls; the robot keeps running and still receives commands)."""
+        if not seconds > 0:
+            raise ValueError(f"pause_output needs a positive duration, got {seconds}")
+        with self._lock:
+            self._tx_hold_until = max(self._tx_hold_until, time.monotonic() + seconds)
+            self.stats.output_pauses += 1
+
     @property
     def connected(self) -> bool:
         """True while a host is connected."""
@@ -266,9 +282,11 @@ class RobotEmulatorServer:
             if not chunk:
                 break
             before = conn.decoder.stats.rejected
+            clamped = conn.decoder.stats.clamped
             frames = conn.decoder.feed(chunk)
             with self._lock:
                 self.stats.rx_rejected += conn.decoder.stats.rejected - before
+                self.stats.rx_clamped += conn.decoder.stats.clamped - clamped
                 for fr in frames:
                     if self.faults.latency_ms or self.faults.jitter_ms:
                         due = max(conn.rx_due, time.monotonic() + self._delay())
@@ -338,7 +356,7 @@ class RobotEmulatorServer:
         """Deliver ``data`` after the link latency, in order."""
         with self._lock:
             now = time.monotonic()
-            due = max(conn.tx_due, now + self._delay())
+            due = max(conn.tx_due, now + self._delay(), self._tx_hold_until)
             conn.tx_due = due
             if due <= now:
                 self._write(conn, data)

@@ -172,6 +172,19 @@ def test_real_encoded_messages_validate(kind):
     val.validate(json_view({**_wire(FULL[kind]), "new_field": 1}))
 
 
+def test_a_waypoint_mission_validates_and_deeper_nesting_does_not():
+    """Waypoints are rows of numbers in a mission's params: the decoder and the schema agree."""
+    val = _validator("mission")
+    msg = MissionCommand(mission="waypoints", params={"points": [[0.5, 1.2], [0.8, 1.2], [0.8, 0.9]]})
+    assert decode(msg.encode()).params["points"] == [[0.5, 1.2], [0.8, 1.2], [0.8, 0.9]]
+    val.validate(json_view(_wire(msg)))
+    deeper = {**_wire(msg), "params": {"points": [[[0.5, 1.2]]]}}
+    with pytest.raises(jsonschema.ValidationError):
+        val.validate(json_view(deeper))
+    with pytest.raises(MessageError):
+        decode(msgpack.packb(deeper))
+
+
 def test_bytes_are_msgpack_bin_and_validate_as_base64():
     payload = FULL["event_window"].encode()
     d = msgpack.unpackb(payload, raw=False)

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
 
-from robot_bridge.missions import MissionError, build_mission, mission_speed
+from robot_bridge.missions import MissionError, MissionLimits, build_mission, check_mission, mission_speed
 
 START = (0.9, 0.6, math.pi / 2)
 
@@ -88,3 +89,43 @@ def test_positions_at_matches_pose_at_on_lines_arcs_and_turns():
         want = np.array([seg.pose_at(s)[:2] for s in ss]) if seg.kind != "turn" else \
             np.tile(seg.start[:2], (ss.size, 1))
         assert np.allclose(seg.positions_at(ss), want, atol=1e-12), seg.kind
+
+
+ARENA = MissionLimits.for_arena((1.83, 1.83))
+
+
+@pytest.mark.parametrize("pattern,params,match", [
+    ("circle", {"pause_s": 0.5, "pause_every_m": 0.000001}, r"pause_every_m=1e-06 out of range: 0 .* \[0.05, 500.0\] m"),
+    ("circle", {"laps": 10**9}, r"laps=1000000000 out of range \[1, 100\]"),
+    ("circle", {"radius_m": 1e9}, r"radius_m=1000000000.0 out of range \[0.05, 1.294\] m"),
+    ("square", {"side_m": 3.0}, r"side_m=3.0 out of range \[0.05, 2.588\] m"),
+    ("back_and_forth", {"length_m": 0.0}, r"length_m=0.0 out of range"),
+    ("circle", {"pause_s": 1e6}, r"pause_s=1000000.0 out of range \[0.0, 60.0\] s"),
+    ("circle", {"laps": float("inf")}, "laps must be an integer"),
+    ("waypoints", {"points": [[0.5, 0.5]] * 10**6}, "points has 1000000 waypoints; at most 256"),
+    ("waypoints", {"points": [[0.5, 0.5], [5.0, 0.5]]}, r"points\[1\]=\[5.0, 0.5\] outside the arena"),
+    ("circle", {"radius_m": 1.2, "laps": 100}, "mission path of 754.0 m exceeds 500 m"),
+    ("square", {"side_m": 0.65, "laps": 100, "pause_s": 0.1, "pause_every_m": 0.05}, "phases, at most 10000"),
+])
+def test_hostile_parameters_are_refused_by_the_pure_check_before_anything_is_built(pattern, params, match):
+    t0 = time.perf_counter()
+    with pytest.raises(MissionError, match=match):
+        check_mission(pattern, params, ARENA)
+    assert time.perf_counter() - t0 < 0.05          # cost independent of the values asked for
+    with pytest.raises(MissionError, match=match):   # build_mission runs the same check first
+        build_mission(pattern, params, START, 0.2, ARENA)
+
+
+def test_check_mission_predicts_the_phases_and_length_build_mission_lays_out():
+    cases = [("circle", {"laps": 100, "pause_s": 0.1, "pause_every_m": 0.05}),
+             ("square", {"side_m": 0.5, "laps": 3, "pause_s": 0.2}),
+             ("figure8", {"radius_m": 0.2, "laps": 2, "pause_s": 0.1, "pause_every_m": 0.3}),
+             ("back_and_forth", {"length_m": 0.4, "laps": 5}),
+             ("waypoints", {"points": [[0.9, 1.2], [1.3, 1.2], [1.3, 0.7]]})]
+    for pattern, params in cases:
+        size = check_mission(pattern, params, ARENA, START)
+        m = build_mission(pattern, params, START, 0.2, ARENA)
+        assert size.length_m == pytest.approx(m.length_m), pattern
+        # an upper bound (a waypoint already faced needs no turn), exact for the patterns
+        assert size.segments >= len(m.segments) and (pattern == "waypoints" or size.segments == len(m.segments))
+    assert check_mission(*cases[0], ARENA).segments == 7600      # huge but valid

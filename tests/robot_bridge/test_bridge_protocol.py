@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import random
+import struct
 
 import pytest
 from hypothesis import given, settings
@@ -158,3 +160,25 @@ def test_seq_gap_and_unwrap():
     assert P.seq_gap(65534, 2) == 3
     u = P.Unwrapper(32)
     assert [u(v) for v in (2**32 - 10, 2**32 - 1, 5, 100)] == [2**32 - 10, 2**32 - 1, 2**32 + 5, 2**32 + 100]
+
+
+def crafted_frame(mtype: int, body: bytes, seq: int = 1, time_us: int = 0) -> bytes:
+    """A well-formed frame whose body the encoder would refuse (out-of-range fields)."""
+    data = P.HEADER.pack(P.PROTOCOL_VERSION, mtype, seq, time_us) + body
+    return P.cobs_encode(data + struct.pack("<H", P.crc16(data))) + b"\x00"
+
+
+def test_out_of_range_fields_are_clamped_to_their_physical_range_and_counted():
+    dec = P.StreamDecoder()
+    tel = P.Telemetry(1, 2, (0, 0, 0), (0, 0, 0), (0, 0, 0), 5000, 0, 0)
+    tel_body = bytearray(tel.pack())
+    struct.pack_into("<hh", tel_body, 28, 9999, -400)            # motor_left out, motor_right at the limit
+    frames = dec.feed(crafted_frame(P.SET_MOTORS, struct.pack("<hh", -5750, 32767))
+                      + crafted_frame(P.SET_MOTORS, struct.pack("<hh", 400, -400), seq=2)
+                      + crafted_frame(P.TELEMETRY, bytes(tel_body), seq=3))
+    assert [f.msg for f in frames] == [P.SetMotors(-400, 400), P.SetMotors(400, -400),
+                                       dataclasses.replace(tel, motor_left=400, motor_right=-400)]
+    assert [f.clamped for f in frames] == [2, 0, 1]
+    assert dec.stats.clamped == 3 and dec.stats.frames == 3 and dec.stats.rejected == 0
+    assert P.decode_packet(P.cobs_decode(crafted_frame(P.SET_MOTORS, struct.pack("<hh", -5750, 0))[:-1])).msg \
+        == P.SetMotors(-400, 0)

@@ -172,3 +172,57 @@ def test_bad_arguments():
         RobotEmulatorServer(w, 3)
     with pytest.raises(ValueError, match="telemetry_hz"):
         RobotEmulatorServer(w, 0, telemetry_hz=0)
+
+
+def test_out_of_range_motor_power_is_clamped_like_the_firmware_and_counted(world):
+    import struct
+    data = P.HEADER.pack(P.PROTOCOL_VERSION, P.SET_MOTORS, 0, 0) + struct.pack("<hh", -5750, 5750)
+    frame = P.cobs_encode(data + struct.pack("<H", P.crc16(data))) + b"\x00"
+    with RobotEmulatorServer(world, 0) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.02)
+        port.write(frame)
+        deadline = time.monotonic() + 1.0
+        while world.power(0) == (0, 0) and time.monotonic() < deadline:
+            time.sleep(0.002)
+        power = world.power(0)
+        port.close()
+    assert power == (-400, 400)                 # never -5750 into the world (or the motor driver)
+    assert emu.stats.rx_clamped == 2 and emu.stats.rx_rejected == 0
+
+
+def test_pause_output_holds_robot_bytes_then_delivers_them_in_order(world):
+    with RobotEmulatorServer(world, 0, telemetry_hz=100) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.02)
+        dec = P.StreamDecoder()
+        assert read_frames(port, dec, 2.0, until=lambda fr: len(fr) >= 5)
+        emu.pause_output(1.0)
+        t0 = time.monotonic()
+        read_frames(port, dec, 0.05)                           # what was already on its way
+        quiet = read_frames(port, dec, 0.8)                    # 0.05..0.85 s into the pause: nothing
+        burst = read_frames(port, dec, 2.0, until=lambda fr: len(fr) >= 80)
+        after = time.monotonic() - t0
+        port.close()
+    assert quiet == [] and emu.stats.output_pauses == 1
+    seqs = [f.seq for f in burst]
+    assert len(burst) >= 80 and after >= 1.0
+    assert all(P.seq_gap(a, b) == 0 for a, b in zip(seqs, seqs[1:]))   # held, not lost: in order
+
+
+def test_watchdog_stops_the_robot_when_its_host_goes_silent_during_a_mission(world):
+    # the safety net under any host-side link timeout: a host that stops commanding (here it
+    # stops because the robot's telemetry stalls, as during an SPP pause) leaves the robot
+    # stopped 300 ms after its last SET_MOTORS, whatever the host thinks of the link
+    with RobotEmulatorServer(world, 0, telemetry_hz=100) as emu:
+        port = serial.serial_for_url(emu.url, timeout=0.02)
+        dec = P.StreamDecoder()
+        for k in range(30):                               # a host commanding at every telemetry frame
+            if read_frames(port, dec, 0.1, until=lambda fr: any(isinstance(f.msg, P.Telemetry) for f in fr)):
+                port.write(P.encode_frame(P.SetMotors(300, 300), k, 0))
+        assert world.power(0) == (300, 300)
+        emu.pause_output(1.0)             # no telemetry reaches the host, so it commands nothing
+        deadline = time.monotonic() + 1.0
+        while world.power(0) != (0, 0) and time.monotonic() < deadline:
+            read_frames(port, dec, 0.01)
+        port.close()
+    assert world.power(0) == (0, 0) and emu.stats.watchdog_trips == 1
+    assert 0.29 <= emu.stats.watchdog_stop_t - emu.stats.last_command_t <= 0.33
