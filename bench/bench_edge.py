@@ -36,10 +36,10 @@ from arena.formats import read_events, write_events
 from arena.formats.evt3 import Evt3Decoder
 from arena.formats.raw import parse_raw_header
 from arena.messages import EventWindow
+from arena.slicing import Slicer
 from camera_edge.filters import BackgroundActivityFilter, HotPixelFilter
 from camera_edge.pipeline import EdgePipeline
 from camera_edge.service import run_edge
-from camera_edge.slicing import Slicer
 from camera_edge.sources import open_source
 
 SAMPLE = Path(__file__).resolve().parents[2] / "shared" / "data" / "evt3_sample.raw"

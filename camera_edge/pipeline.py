@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from camera_edge.filters import EventFilter
-from camera_edge.slicing import Slicer
+from arena.slicing import Slicer
 
 
 @dataclass

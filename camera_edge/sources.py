@@ -1,7 +1,9 @@
 """Event sources: one small interface over files, TCP byte streams and vendor cameras.
 
-python-can style: :class:`EventSource` is the abstract base; :func:`open_source` picks a
-backend from a URL or a path::
+python-can style: :class:`EventSource` is the abstract base (``read`` and ``close``);
+:func:`open_source` picks a backend from a URL scheme (:data:`SOURCE_SCHEMES`) or a file
+extension (:data:`SOURCE_EXTENSIONS`), else from the source plug-ins that installed packages
+register in the entry-point group ``arena.sources``::
 
     with open_source("tcp://127.0.0.1:9000") as src:        # live EVT 3.0 stream
         while (ev := src.read()) is not None:
@@ -14,14 +16,28 @@ backend from a URL or a path::
 empty when nothing arrived within ``timeout``) or ``None`` at the end of a file or after
 ``close()``. ``time_us`` is the latest sensor time known (also from time words without
 events), so slicing can advance through silent periods.
+
+A lab adds its own camera without touching this package: its distribution declares ::
+
+    [project.entry-points."arena.sources"]
+    mycam = "mycam_arena:MyCamSource"     # opened as mycam_arena.MyCamSource("mycam:...", **opts)
+
+and ``arena edge mycam:ID`` opens it. The entry point loads a callable ``(url, **opts) ->
+EventSource`` (typically an :class:`EventSource` subclass); it is looked up, and imported,
+only when a source with that scheme is opened. Built-in schemes take precedence over a
+plug-in of the same name.
 """
 
 from __future__ import annotations
 
+import abc
 import logging
+import re
 import socket
 import time
 import urllib.parse
+from collections.abc import Callable
+from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 
 import numpy as np
@@ -37,8 +53,9 @@ class SourceError(RuntimeError):
     """A source cannot be opened (unknown URL, missing SDK, unreadable file); the message says why."""
 
 
-class EventSource:
-    """Abstract event source. Subclasses set ``width``/``height`` (px) and implement :meth:`read`."""
+class EventSource(abc.ABC):
+    """Abstract event source. Subclasses set ``width``/``height`` (px) and ``name``, call
+    ``super().__init__()``, and implement :meth:`read` and :meth:`close`."""
 
     width: int = 0
     height: int = 0
@@ -50,12 +67,14 @@ class EventSource:
         #: events dropped by the source (outside the sensor, corrupt input)
         self.invalid = 0
 
-    def read(self, timeout: float = 0.1) -> np.ndarray | None:  # pragma: no cover - abstract
-        """Next chunk of events; empty if none within ``timeout`` s; None when finished."""
-        raise NotImplementedError
+    @abc.abstractmethod
+    def read(self, timeout: float = 0.1) -> np.ndarray | None:
+        """Next chunk of events (sensor px, µs, in stream order); empty if none within
+        ``timeout`` s; None when finished or closed. Updates :attr:`time_us`."""
 
+    @abc.abstractmethod
     def close(self) -> None:
-        """Release the device, socket or file (idempotent)."""
+        """Release the device, socket or file (idempotent); ``read`` returns None afterwards."""
 
     def __enter__(self):
         return self
@@ -354,6 +373,7 @@ class PropheseeSource(EventSource):
 
     def close(self) -> None:
         self._it = iter(())
+        self._it_obj = None   # the SDK releases the camera with its iterator
 
 
 class InivationSource(EventSource):
@@ -395,7 +415,7 @@ class InivationSource(EventSource):
             raise SourceError(f"cannot open iniVation camera {name or found[0]}: {_first_line(exc)}") from None
 
     def read(self, timeout: float = 0.1) -> np.ndarray | None:
-        if not self._cam.isRunning():
+        if self._cam is None or not self._cam.isRunning():
             return None
         batch = self._cam.getNextEventBatch()
         if batch is None:
@@ -407,6 +427,11 @@ class InivationSource(EventSource):
         self._note_time(ev)
         return ev
 
+    def close(self) -> None:
+        """Stop reading and let go of the camera (dv-processing has no close call: it releases
+        the device, or the recording, when its last reference goes)."""
+        self._cam = None
+
 
 def _first_line(exc: BaseException) -> str:
     """An SDK exception's first meaningful line (dv-processing appends a C++ stack trace)."""
@@ -417,23 +442,85 @@ def _first_line(exc: BaseException) -> str:
     return lines[0] if lines else type(exc).__name__
 
 
+#: how a source is opened: ``opener(url_or_path, **opts) -> EventSource``
+SourceOpener = Callable[..., EventSource]
+#: the entry-point group in which installed packages register source schemes
+SOURCE_ENTRY_POINTS = "arena.sources"
+
+
+def _open_prophesee(url: str, **opts) -> EventSource:
+    return PropheseeSource(url.split(":", 1)[1], **opts)
+
+
+def _open_inivation(url: str, **opts) -> EventSource:
+    return InivationSource(url.split(":", 1)[1], **opts)
+
+
+#: built-in URL schemes (``scheme:...``), each with its usage for messages
+SOURCE_SCHEMES: dict[str, SourceOpener] = {"tcp": TcpSource, "prophesee": _open_prophesee,
+                                           "inivation": _open_inivation}
+SCHEME_USAGE = {"tcp": "tcp://HOST:PORT", "prophesee": "prophesee:[SERIAL]", "inivation": "inivation:[NAME]"}
+#: file extensions (any format of :mod:`arena.formats` that can be read); they take ``speed``
+SOURCE_EXTENSIONS: dict[str, SourceOpener] = {ext: FileSource for ext in READ_EXTENSIONS}
+
+# a scheme has two characters or more, so a Windows drive letter (C:\rec.raw) is a path
+_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9+.-]+):")
+
+
+def source_plugins() -> dict[str, EntryPoint]:
+    """Source schemes of installed plug-ins (entry-point group ``arena.sources``), by scheme
+    (lower case), built-in schemes left out (those win)."""
+    found = {ep.name.lower(): ep for ep in entry_points(group=SOURCE_ENTRY_POINTS)}
+    return {k: ep for k, ep in sorted(found.items()) if k not in SOURCE_SCHEMES}
+
+
+def _open_plugin(ep: EntryPoint, url: str, opts: dict) -> EventSource:
+    dist = getattr(ep, "dist", None)
+    origin = f"{ep.value}" + (f" from {dist.name} {dist.version}" if dist is not None else "")
+    try:
+        opener = ep.load()
+    except Exception as exc:  # noqa: BLE001 - a broken plug-in is an error to report, whatever it raises
+        raise SourceError(f"event source plug-in {ep.name!r} ({origin}) cannot be loaded: "
+                          f"{type(exc).__name__}: {exc}; reinstall the package that provides it") from None
+    try:
+        src = opener(url, **opts)
+    except SourceError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - same: one clear line, not a plug-in's traceback
+        raise SourceError(f"event source plug-in {ep.name!r} ({origin}) cannot open {url!r}: "
+                          f"{type(exc).__name__}: {exc}") from None
+    if not isinstance(src, EventSource):
+        raise SourceError(f"event source plug-in {ep.name!r} ({origin}) returned a {type(src).__name__}, "
+                          "not a camera_edge.sources.EventSource")
+    return src
+
+
+def _unknown(s: str) -> SourceError:
+    plugins = source_plugins()
+    installed = (f"installed: {', '.join(f'{k}:' for k in plugins)}" if plugins else
+                 f"none installed; a camera package adds one in the entry-point group {SOURCE_ENTRY_POINTS!r}")
+    return SourceError(f"unknown event source {s!r}: use {', '.join(SCHEME_USAGE.values())}, a file "
+                       f"({', '.join(SOURCE_EXTENSIONS)}) or a source plug-in's scheme ({installed})")
+
+
 def open_source(url_or_path: str, speed: float = 1.0, **opts) -> EventSource:
-    """Open an event source by URL scheme (``tcp://``, ``prophesee:``, ``inivation:``) or by file
-    extension (.raw, .dat, .aedat4, .csv, .npy, .npz). ``speed`` applies to files; ``opts`` go
-    to the backend (e.g. ``width``/``height`` for tcp://, ``loop`` for files).
+    """Open an event source by URL scheme (``tcp://``, ``prophesee:``, ``inivation:``, or a
+    plug-in's from the ``arena.sources`` entry points) or by file extension (.raw, .dat,
+    .aedat4, .csv, .npy, .npz). ``speed`` applies to files; ``opts`` go to the backend (e.g.
+    ``width``/``height`` for tcp://, ``loop`` for files).
     Raises :class:`SourceError` with a clear message if it cannot."""
     s = str(url_or_path)
-    low = s.lower()
-    if low.startswith("tcp://"):
-        return TcpSource(s, **opts)
-    if low.startswith("prophesee:"):
-        return PropheseeSource(s.split(":", 1)[1], **opts)
-    if low.startswith("inivation:"):
-        return InivationSource(s.split(":", 1)[1], **opts)
+    m = _SCHEME.match(s)
+    scheme = m.group(1).lower() if m else None
+    if scheme in SOURCE_SCHEMES:
+        return SOURCE_SCHEMES[scheme](s, **opts)
     ext = Path(s).suffix.lower()
-    if ext in READ_EXTENSIONS:
+    if scheme is not None:
+        ep = source_plugins().get(scheme)
+        if ep is not None:
+            return _open_plugin(ep, s, opts)
+    if ext in SOURCE_EXTENSIONS:
         if not Path(s).is_file():
             raise SourceError(f"no such file: {s!r}")
-        return FileSource(s, speed=speed, **opts)
-    raise SourceError(f"unknown event source {s!r}: use tcp://HOST:PORT, prophesee:[SERIAL], "
-                      f"inivation:[NAME] or a file ({', '.join(READ_EXTENSIONS)})")
+        return SOURCE_EXTENSIONS[ext](s, speed=speed, **opts)
+    raise _unknown(s)

@@ -166,6 +166,7 @@ def run_offline(args, lab=None) -> int:
     """``arena track --input FILE``; ``lab``: the lab config (gives the calibration when there
     is no ``--calibration``, and the number of robots)."""
     from arena.formats import FormatError, iter_events
+    from arena.slicing import Slicer
     from tracker.calibration import CalibrationError
     from tracker.pipeline import Pipeline, TrackCsvWriter, iter_slices
 
@@ -194,6 +195,10 @@ def run_offline(args, lab=None) -> int:
     except CalibrationError as exc:
         raise fail(f"arena track: {exc}") from None
     slice_us = int(round(args.slice_ms * 1000))
+    try:   # the edge's windows (arena.slicing): multiples of slice_us, late events kept and counted
+        slicer = Slicer(slice_us)
+    except ValueError as exc:
+        raise fail(f"arena track: --slice-ms: {exc}") from None
     n_rows = n_slices = 0
     t0 = time.perf_counter()
     try:
@@ -202,7 +207,7 @@ def run_offline(args, lab=None) -> int:
                 raise fail(f"arena track: {args.input} is {reader.width}x{reader.height} px but the "
                                  f"calibration is for {w}x{h} px")
             writer = TrackCsvWriter(fh)
-            for t_end, ev in iter_slices(reader, slice_us):
+            for t_end, ev in iter_slices(reader, slice_us, slicer=slicer):
                 n_rows += writer.write(pipe.push(ev, t_end))
                 n_slices += 1
     except (FormatError, OSError) as exc:
@@ -211,7 +216,10 @@ def run_offline(args, lab=None) -> int:
         raise fail(f"arena track: {args.input}: {exc}") from None
     dt = time.perf_counter() - t0
     print(f"{args.tracker} tracker, {args.detector} detector: {n_slices} slices, {n_rows} track rows -> "
-          f"{args.tracks_out} ({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice)", file=sys.stderr)
+          f"{args.tracks_out} ({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice); "
+          f"{slicer.late} late event(s) kept in the slice open when they came (as the edge does)"
+          + (f", {slicer.skipped_gaps} gap(s) over {slicer.max_gap_slices} slices skipped" if slicer.skipped_gaps
+             else ""), file=sys.stderr)
     return 0
 
 

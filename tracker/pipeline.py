@@ -19,7 +19,7 @@ from typing import IO
 
 import numpy as np
 
-from arena.events import concat_events
+from arena.slicing import Slicer
 from tracker.accumulate import PixelWindow
 from tracker.calibration import Calibration
 from tracker.detect import Detection, Detector, DetectorConfig, PaperConfig, PaperDetector
@@ -165,44 +165,28 @@ def warm_up(make_pipeline, n_slices: int = 12) -> None:
         pipe.push(ev, (k + 1) * 10_000)
 
 
-def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | None = None
-                ) -> Iterator[tuple[int, np.ndarray]]:
-    """Cut a time-sorted stream of event chunks into slices ``[t0 + k*slice_us, t0 + (k+1)*slice_us)``.
+def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | None = None, *,
+                slicer: Slicer | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Cut a stream of event chunks into the windows the edge publishes: :class:`arena.slicing.Slicer`.
 
-    Yields ``(t_end_us, events)`` for every slice, empty ones included, from the first
-    event's slice (or ``start_us``) to the last event's. Events out of time order by more
-    than the current slice are dropped.
+    Yields ``(t_end_us, events)`` for every window ``[t_end_us - slice_us, t_end_us)``, empty
+    ones included; boundaries are multiples of ``slice_us`` of the sensor clock, from the first
+    event's window (or ``start_us``'s) to the last event's, which ends the stream partly filled
+    (the edge flushes it at the end of a file). Late (out-of-order) events go into the window
+    open when they arrive, as at the edge; a jump in time longer than the Slicer's
+    ``max_gap_slices`` windows restarts the windows instead of emitting them all empty.
+    ``slicer``: a Slicer of ``slice_us`` to use (read its ``late`` and ``skipped_gaps`` after).
     """
-    if slice_us <= 0:
-        raise ValueError(f"slice duration must be > 0 µs, got {slice_us!r}")
-    t0 = start_us
-    pending: list[np.ndarray] = []
+    if slicer is None:
+        slicer = Slicer(slice_us, start_us=start_us)
+    elif slicer.slice_us != slice_us or start_us is not None:
+        raise ValueError(f"iter_slices: give either a Slicer of {slice_us} µs or start_us, "
+                         f"got a Slicer of {slicer.slice_us} µs and start_us={start_us!r}")
     for chunk in chunks:
-        if chunk.size == 0:
-            continue
-        if t0 is None:
-            t0 = int(chunk["t"][0])
-        pending.append(chunk)
-        buf = concat_events(pending)
-        last = int(buf["t"][-1])
-        # slices that are complete: end <= last event time
-        n_done = (last - t0) // slice_us
-        if n_done <= 0:
-            pending = [buf]
-            continue
-        ends = t0 + slice_us * np.arange(1, n_done + 1, dtype=np.int64)
-        cut = np.searchsorted(buf["t"], ends, side="left")
-        prev = 0
-        for e, c in zip(ends, cut):
-            yield int(e), buf[prev:c]
-            prev = c
-        t0 = int(ends[-1])
-        rest = buf[prev:]
-        pending = [rest[rest["t"] >= t0]]
-    if pending and t0 is not None:
-        buf = concat_events(pending)
-        if buf.size:
-            yield t0 + slice_us, buf
+        for s in slicer.push(chunk):
+            yield s.t_end_us, s.events
+    for s in slicer.flush():
+        yield s.t_end_us, s.events
 
 
 def _fmt(x: float, digits: int) -> str:

@@ -1,4 +1,6 @@
-"""Slicing (fixed windows, empty ones emitted, across chunks) and filters on labelled simulator data."""
+"""The edge's filters on labelled simulator data, and the edge pipeline (slice, then filter).
+
+The Slicer itself is shared with the offline tracker: tests/arena/test_slicing.py."""
 
 from __future__ import annotations
 
@@ -10,44 +12,6 @@ import pytest
 from arena.events import make_events
 from camera_edge.filters import BackgroundActivityFilter, HotPixelFilter, RoiFilter
 from camera_edge.pipeline import EdgePipeline
-from camera_edge.slicing import Slicer
-
-
-def _ev(ts, x=1, y=1):
-    ts = np.asarray(ts)
-    return make_events(np.full(ts.size, x), np.full(ts.size, y), np.zeros(ts.size), ts)
-
-
-def test_slices_are_contiguous_and_empty_ones_are_emitted():
-    s = Slicer(10_000)
-    out = s.push(_ev([12_000, 15_000, 51_000]))
-    assert [(w.t_start_us, w.t_end_us, w.events.size) for w in out] == [
-        (10_000, 20_000, 2), (20_000, 30_000, 0), (30_000, 40_000, 0), (40_000, 50_000, 0)]
-    assert s.push(_ev([55_000])) == []
-    closed = s.advance(70_000)  # sensor time advanced without events
-    assert [(w.t_start_us, w.events.size) for w in closed] == [(50_000, 2), (60_000, 0)]
-    assert [(w.t_start_us, w.events.size) for w in s.flush()] == [(70_000, 0)]
-
-
-def test_slicing_is_independent_of_chunk_boundaries():
-    rng = np.random.default_rng(0)
-    ev = _ev(np.sort(rng.integers(0, 1_000_000, 20_000)))
-    whole = Slicer(10_000)
-    ref = whole.push(ev) + whole.flush()
-    for cuts in ([5], [3, 777, 778, 19_000], list(range(0, 20_000, 999))):
-        s = Slicer(10_000)
-        got = []
-        for a, b in zip([0, *cuts], [*cuts, ev.size]):
-            got += s.push(ev[a:b])
-        got += s.flush()
-        assert [(w.t_start_us, w.events.size) for w in got] == [(w.t_start_us, w.events.size) for w in ref]
-    assert sum(w.events.size for w in ref) == ev.size and len(ref) == 100
-
-
-def test_a_long_silence_restarts_windows_instead_of_flooding():
-    s = Slicer(10, max_gap_slices=5)
-    out = s.push(_ev([0, 1_000_000]))
-    assert len(out) == 1 and s.skipped_gaps == 1
 
 
 @pytest.fixture(scope="module")
