@@ -21,14 +21,27 @@
 - Restarts: the fleet tracker's state (:meth:`tracker.fleet.FleetTracker.snapshot`: IDs,
   names, last poses) is written atomically to a small JSON state file every second and at
   exit, and restored at start (unless older than ``--state-max-age``), so track IDs come back
-  after a crash, a SIGKILL or an upgrade. A state file that cannot be read is logged and set
-  aside (``.bad``); the tracker then starts afresh.
+  after a crash, a SIGKILL or an upgrade. The file is validated like a message
+  (:func:`check_state`: at most :data:`MAX_STATE_BYTES`, types, finite numbers, ranges, at most
+  :data:`MAX_STATE_TRACKS` tracks); one that is unreadable or invalid in any way is renamed
+  ``<file>.bad`` (replacing an older ``.bad``: one is kept), one warning names the problem, and
+  the tracker starts afresh.
+- Catching up: a tracker that stalled (its worker blocked, the process stopped, the host
+  starved) does not replay its backlog. A window ending more than ``accumulation +``
+  :attr:`LiveTracker.STALE_MARGIN_US` before the newest window received is skipped unprocessed
+  (``windows_skipped_stale``; each run of skips is logged with its windows and seconds); after a
+  stall the pipeline rebuilds its accumulation window from the windows it keeps before it
+  publishes again (tracks not published meanwhile: ``tracks_withheld``).
+- Last resort: a window whose processing raises anything unexpected (decode, pipeline,
+  publishing, the CSV log) is counted in ``windows_failed``, logged (rate-limited, with the
+  exception's type and message) and the loop goes on with the next window.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import threading
 import time
@@ -46,7 +59,21 @@ from tracker.pipeline import Pipeline, TrackCsvWriter, warm_up
 
 log = logging.getLogger("tracker")
 
-__all__ = ["LiveTracker", "Inbox", "run_live", "default_state_path", "save_state", "load_state"]
+__all__ = ["LiveTracker", "Inbox", "run_live", "default_state_path", "save_state", "load_state", "check_state",
+           "MAX_STATE_BYTES", "MAX_STATE_TRACKS"]
+
+#: a state file larger than this is not read (a fleet of 1000 tracks takes ~250 kB)
+MAX_STATE_BYTES = 1 << 20
+#: at most this many tracks in a state file
+MAX_STATE_TRACKS = 1000
+#: track IDs in a state file: 0 .. 2**53 (exact in JSON, in a float, in any msgpack int)
+MAX_TRACK_ID = 2 ** 53
+#: sensor times in a state file: |t| <= 2**62 µs (int64 with room for arithmetic)
+MAX_STATE_T_US = 2 ** 62
+#: positions in a state file: |x|, |y| <= this, m (as in an arena.messages.Track)
+MAX_STATE_POS_M = 1e4
+#: a state file written more than this in the future (s) is not restored (the file or the clock is wrong)
+STATE_FUTURE_S = 60.0
 
 
 def default_state_path(name: str) -> Path:
@@ -71,21 +98,120 @@ def save_state(path: Path, state: dict) -> None:
 
 def load_state(path: Path, camera: str, max_age_s: float, now_s: float | None = None) -> tuple[dict | None, str]:
     """Read a state file written by :func:`save_state` for ``camera``. Returns ``(fleet
-    snapshot or None, why)``; raises ValueError for a file that is not a tracker state."""
+    snapshot or None, why)``; raises ValueError (naming the problem) for a file that is not a
+    valid tracker state: larger than :data:`MAX_STATE_BYTES` (not read), not UTF-8 JSON, or
+    refused by :func:`check_state`."""
     if not path.exists():
         return None, f"no state file {path}: starting afresh"
     try:
-        state = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"state file {path} is not JSON ({exc})") from None
-    if not isinstance(state, dict) or not isinstance(state.get("fleet"), dict):
-        raise ValueError(f"state file {path} has no 'fleet' table: not a tracker state")
-    if state.get("camera") != camera:
-        return None, f"state file {path} is camera {state.get('camera')!r}'s, not {camera!r}: starting afresh"
-    age = (time.time() if now_s is None else now_s) - float(state.get("written_s", 0.0))
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_STATE_BYTES + 1)   # bounded: never a whole 1 GB file
+    except OSError as exc:
+        raise ValueError(f"state file {path} cannot be read ({exc})") from None
+    if len(raw) > MAX_STATE_BYTES:
+        raise ValueError(f"state file {path} is larger than {MAX_STATE_BYTES} bytes: not a tracker state")
+    try:
+        state = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:   # JSONDecodeError is a ValueError
+        raise ValueError(f"state file {path} is not JSON ({type(exc).__name__}: {str(exc)[:200]})") from None
+    try:
+        state = check_state(state)
+    except ValueError as exc:
+        raise ValueError(f"state file {path}: {exc}") from None
+    if state["camera"] != camera:
+        return None, f"state file {path} is camera {state['camera']!r}'s, not {camera!r}: starting afresh"
+    age = (time.time() if now_s is None else now_s) - state["written_s"]
+    if age < -STATE_FUTURE_S:
+        return None, f"state file {path} was written {-age:.0f} s in the future (a clock was wrong): starting afresh"
     if not age <= max_age_s:
         return None, f"state file {path} is {age:.0f} s old (> {max_age_s:g} s): starting afresh"
     return state["fleet"], f"{age:.1f} s old"
+
+
+def _num(d: dict, key: str, where: str, *, optional: bool = False, lim: float | None = None) -> None:
+    """``d[key]`` must be a finite number (not a bool) with ``|value| <= lim``, or null/absent if ``optional``."""
+    v = d.get(key)
+    if v is None:
+        if optional:
+            return
+        raise ValueError(f"{where}.{key} is missing or null, expected a number")
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ValueError(f"{where}.{key} is a {type(v).__name__}, expected a number")
+    if not math.isfinite(v):
+        raise ValueError(f"{where}.{key} is {v}, expected a finite number")
+    if lim is not None and abs(v) > lim:
+        raise ValueError(f"{where}.{key} = {v:g} is outside [-{lim:g}, {lim:g}]")
+
+
+def _int(d: dict, key: str, where: str, lo: int, hi: int, *, optional: bool = False) -> None:
+    """``d[key]`` must be an integer (not a bool, not a float) in ``[lo, hi]``, or absent if ``optional``."""
+    if key not in d and optional:
+        return
+    v = d.get(key)
+    if isinstance(v, bool) or not isinstance(v, int):
+        shown = v if isinstance(v, (int, float)) and not isinstance(v, bool) else type(v).__name__
+        raise ValueError(f"{where}.{key} is {shown}, expected an integer")
+    if not lo <= v <= hi:
+        raise ValueError(f"{where}.{key} = {v} is outside [{lo}, {hi}]")
+
+
+def check_state(state: object) -> dict:
+    """Validate a decoded tracker state file like a message (pure: no I/O, no clock); returns it
+    unchanged or raises ValueError naming the first problem. Checked: a JSON object with a
+    ``camera`` name, a finite ``written_s`` (wall clock, s) and a ``fleet`` table of
+    :meth:`tracker.fleet.FleetTracker.snapshot` (``v``, ``next_id``, at most
+    :data:`MAX_STATE_TRACKS` ``tracks``, each with an integer ``id`` in ``[0, 2**53]``, a valid
+    robot name or null, finite ``x``/``y`` (m), ``yaw`` (rad), ``u``/``v`` (px), integer times
+    (µs) and ``hits``). Unknown keys are ignored."""
+    if not isinstance(state, dict):
+        raise ValueError(f"holds a JSON {type(state).__name__}, expected an object: not a tracker state")
+    cam = state.get("camera")
+    if not isinstance(cam, str):
+        raise ValueError(f"'camera' is {type(cam).__name__}, expected a camera name")
+    try:
+        validate_name(cam, "camera name")
+    except ValueError as exc:
+        raise ValueError(f"'camera': {exc}") from None
+    _num(state, "written_s", "state", lim=1e12)
+    fleet = state.get("fleet")
+    if not isinstance(fleet, dict):
+        raise ValueError(f"'fleet' is {type(fleet).__name__}, expected an object: not a tracker state")
+    _int(fleet, "v", "fleet", 0, 1_000_000)
+    _int(fleet, "next_id", "fleet", 0, MAX_TRACK_ID, optional=True)
+    tracks = fleet.get("tracks")
+    if not isinstance(tracks, list):
+        raise ValueError(f"fleet.tracks is {type(tracks).__name__}, expected a list")
+    if len(tracks) > MAX_STATE_TRACKS:
+        raise ValueError(f"fleet.tracks holds {len(tracks)} tracks, at most {MAX_STATE_TRACKS}")
+    for i, rec in enumerate(tracks):
+        where = f"fleet.tracks[{i}]"
+        if not isinstance(rec, dict):
+            raise ValueError(f"{where} is {type(rec).__name__}, expected an object")
+        _int(rec, "id", where, 0, MAX_TRACK_ID)
+        robot = rec.get("robot")
+        if robot is not None:
+            if not isinstance(robot, str):
+                raise ValueError(f"{where}.robot is {type(robot).__name__}, expected a robot name or null")
+            try:
+                validate_name(robot, "robot name")
+            except ValueError as exc:
+                raise ValueError(f"{where}.robot: {exc}") from None
+        for k in ("x", "y"):
+            _num(rec, k, where, lim=MAX_STATE_POS_M)
+        for k in ("vx", "vy"):
+            _num(rec, k, where, optional=True, lim=100.0)
+        _num(rec, "yaw", where, optional=True, lim=10.0)
+        for k in ("u", "v"):
+            _num(rec, k, where, optional=True, lim=1e5)
+        _int(rec, "t_us", where, -MAX_STATE_T_US, MAX_STATE_T_US)
+        _int(rec, "last_seen_us", where, -MAX_STATE_T_US, MAX_STATE_T_US, optional=True)
+        _int(rec, "hits", where, 0, 2 ** 31, optional=True)
+    return state
+
+
+#: the worker took no window for this long (s): it stalled (or the stream paused); the pipeline
+#: rebuilds its accumulation window before it publishes again
+STALL_S = 0.5
 
 
 def _opt(x: float) -> float | None:
@@ -106,6 +232,10 @@ class LiveTracker:
     #: corrupt sender), counted in ``sequence_resets``, not that many windows missed
     MAX_SEQ_GAP = 100_000
 
+    #: a window ending more than the accumulation time + this before the newest window received
+    #: is stale: skipped unprocessed (``windows_skipped_stale``), so a stalled tracker catches up
+    STALE_MARGIN_US = 50_000
+
     #: a ground-truth pose names the nearest track within this distance, m ...
     NAME_GATE_M = 0.10
     #: ... once it has done so this many times in a row
@@ -124,6 +254,13 @@ class LiveTracker:
         self.lock = threading.Lock()
         w, h = pipeline.calibration.image_size
         self.size = (w, h)
+        # catching up: the run of stale windows being skipped
+        # [n, first t_start, last t_end, newest t_end, windows the full queue dropped meanwhile]
+        self._skipped: list[int] | None = None
+        # after a stall or a long skip, tracks are withheld until the pipeline's accumulation
+        # window is full again: pending (from the next window processed), then until this end, µs
+        self._rebuild_pending = False
+        self._rebuild_until: int | None = None
 
     def snapshot(self) -> dict | None:
         """The state to write to the state file (None: this tracker keeps none)."""
@@ -174,9 +311,35 @@ class LiveTracker:
             if n >= self.NAME_VOTES and not any(m.track_id == best and m.robot == robot for m in self.fleet.values()):
                 self._pending_names[best] = robot
 
-    def handle(self, payload: bytes, now_ns: int, dropped_in_queue: int = 0) -> list[tuple[str, Track, TrackedRobot]]:
+    def window_end(self, payload: bytes) -> int | None:
+        """End (sensor µs) of the window in ``payload`` if it is a valid window of this camera and
+        sensor, else None (the worker peeks at the newest window received with it)."""
+        try:
+            win = EventWindow.decode(payload)
+        except MessageError:
+            return None
+        if win.camera != self.camera or (win.width, win.height) != self.size:
+            return None
+        return win.t_end_us
+
+    def _end_skip_run(self) -> None:
+        n, t0, t1, newest, queue = self._skipped
+        self._skipped = None
+        log.warning("camera %s: caught up: skipped %d stale window(s), %.2f s of sensor time (%d..%d µs), "
+                    "ending more than %.0f ms before the newest window received (%d µs)%s", self.camera, n,
+                    (t1 - t0) / 1e6, t0, t1, (self.pipeline.accumulation_us + self.STALE_MARGIN_US) / 1e3, newest,
+                    f"; the full queue dropped {queue} older one(s)" if queue else "")
+
+    def handle(self, payload: bytes, now_ns: int, dropped_in_queue: int = 0, newest_end_us: int | None = None,
+               resumed: bool = False) -> list[tuple[str, Track, TrackedRobot]]:
         """Process one event-window payload; returns ``(key, message, track)`` to publish.
-        ``dropped_in_queue``: windows our own full queue dropped since the previous call."""
+        ``dropped_in_queue``: windows our own full queue dropped since the previous call.
+        ``newest_end_us``: end (sensor µs) of the newest window received (waiting in the queue):
+        this window is skipped if it ends more than ``accumulation + STALE_MARGIN_US`` before it.
+        ``resumed``: the worker has just come back from a stall (no window for a while): the
+        tracks are withheld until the pipeline's accumulation window is full again."""
+        if resumed:
+            self._rebuild_pending = True
         with self.lock:
             pending, self._pending_names = self._pending_names, {}
         namer = getattr(self.pipeline.tracker, "set_robot_name", None)
@@ -229,6 +392,19 @@ class LiveTracker:
                             self.camera, gap - at_edge - here, win.seq, waited)
         self.last_seq = win.seq
         self._last_dropped = win.dropped
+        acc = self.pipeline.accumulation_us
+        if newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.STALE_MARGIN_US:
+            self._count("windows_skipped_stale")
+            if self._skipped is None:
+                self._skipped = [0, win.t_start_us, win.t_end_us, newest_end_us, 0]
+            self._skipped[0] += 1
+            self._skipped[2:4] = [win.t_end_us, newest_end_us]
+            self._skipped[4] += dropped_in_queue
+            return []
+        if self._skipped is not None:
+            if self._skipped[2] - self._skipped[1] >= acc:
+                self._rebuild_pending = True   # the accumulation window lost its history: rebuild it first
+            self._end_skip_run()
         if events.size and (int(events["t"][0]) < win.t_start_us or int(events["t"][-1]) >= win.t_end_us):
             self._bad("windows_bad", f"window seq {win.seq} has events outside [t_start, t_end): skipped")
             return []
@@ -241,6 +417,13 @@ class LiveTracker:
         self._count("windows_in")
         if self.svc is not None:
             self.svc.gauge("process_ms", round((time.perf_counter() - t0) * 1e3, 3))
+        if self._rebuild_pending:
+            self._rebuild_pending, self._rebuild_until = False, win.t_start_us + acc
+        if self._rebuild_until is not None:
+            if win.t_end_us < self._rebuild_until:
+                self._count("tracks_withheld", len(tracks))
+                return []
+            self._rebuild_until = None
         out = []
         for tr in tracks:
             msg = Track(track_id=tr.track_id, robot=tr.robot, camera=self.camera, stamp_us=tr.t_us,
@@ -340,6 +523,8 @@ def run_live(args) -> int:
             log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(args.camera),
                      args.tracker, args.detector)
             try:
+                newest: tuple[bytes | None, int | None] = (None, None)   # (payload, its window end), cached
+                last_window = None   # monotonic s when the worker last took a window
                 while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
                     if state_path is not None and time.monotonic() >= next_save:
                         next_save = time.monotonic() + 1.0
@@ -349,21 +534,34 @@ def run_live(args) -> int:
                         svc.count("windows_dropped_in_queue", dropped)
                     if payload is None:
                         continue
-                    out = live.handle(payload, time.time_ns(), dropped)
-                    for key, msg, tr in out:
-                        pub = publishers.get(key)
-                        if pub is None:
-                            pub = publishers[key] = session.declare_publisher(key)
-                        msg.tracker_publish_ns = time.time_ns()
-                        pub.put(msg.encode())
-                    if out:
-                        svc.count("tracks_out", len(out))
-                        svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
-                        edge = out[0][1].edge_publish_ns
-                        if edge:
-                            svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
-                        if writer is not None:
-                            writer.write(tr for _, _, tr in out)
+                    now = time.monotonic()
+                    resumed = last_window is not None and now - last_window > STALL_S
+                    last_window = now
+                    try:
+                        queued = inbox.newest()
+                        if queued is not None and queued is not newest[0]:
+                            newest = (queued, live.window_end(queued))
+                        out = live.handle(payload, time.time_ns(), dropped,
+                                          newest_end_us=newest[1] if queued is not None else None, resumed=resumed)
+                        for key, msg, tr in out:
+                            pub = publishers.get(key)
+                            if pub is None:
+                                pub = publishers[key] = session.declare_publisher(key)
+                            msg.tracker_publish_ns = time.time_ns()
+                            pub.put(msg.encode())
+                        if out:
+                            svc.count("tracks_out", len(out))
+                            svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
+                            edge = out[0][1].edge_publish_ns
+                            if edge:
+                                svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
+                            if writer is not None:
+                                writer.write(tr for _, _, tr in out)
+                    except Exception as exc:   # last resort: one window must not stop the tracker
+                        svc.count("windows_failed")
+                        svc.error(f"window not processed ({type(exc).__name__}: {str(exc)[:300]}); "
+                                  "counted in windows_failed, tracking goes on")
+                        log.debug("window not processed", exc_info=True)
             except KeyboardInterrupt:
                 pass
             finally:
@@ -402,6 +600,11 @@ class Inbox:
             self._items.append(item)
             self._cv.notify()
 
+    def newest(self):
+        """The newest item waiting (None if none), left in place."""
+        with self._cv:
+            return self._items[-1] if self._items else None
+
     def get(self, timeout: float) -> tuple[object | None, int]:
         """The oldest item (None after ``timeout`` s without one) and how many were dropped
         since the previous call."""
@@ -414,19 +617,24 @@ class Inbox:
 
 
 def _restore_state(live: LiveTracker, path: Path, max_age_s: float, svc) -> None:
+    """Restore the fleet from ``path``; a file that is not a valid state (any problem) is
+    renamed ``<file>.bad`` (one kept: it replaces an older one), one warning names the problem,
+    and the tracker starts afresh."""
     try:
         fleet, why = load_state(path, live.camera, max_age_s)
         if fleet is None:
             log.info("%s", why)
             return
         ids = live.restore(fleet)
-    except ValueError as exc:
+    except (ValueError, TypeError, OverflowError) as exc:   # restore's own checks as a second line
         bad = path.with_name(path.name + ".bad")
         try:
             os.replace(path, bad)
-        except OSError:
-            pass
-        svc.error(f"{exc}; set aside as {bad.name}, starting afresh")
+            aside = f"renamed {bad.name} (inspect or delete it)"
+        except OSError as err:
+            aside = f"and cannot be renamed {bad.name} ({err}); it is overwritten at the next save"
+        svc.count("state_rejected")
+        svc.error(f"{exc}; {aside}, starting afresh")
         return
     svc.count("state_restored")
     log.info("restored %d track(s) %s from %s (%s)", len(ids), ids, path, why)
@@ -438,6 +646,6 @@ def _save_state(live: LiveTracker, path: Path, svc) -> None:
         return
     try:
         save_state(path, state)
-    except OSError as exc:
+    except (OSError, ValueError, TypeError) as exc:
         svc.count("state_write_errors")
         log.warning("cannot write the state file %s: %s", path, exc)

@@ -27,7 +27,9 @@ def _log_rejected(n: int, what: str) -> None:
 def handle_sample(state: ViewerState, key: str, payload: bytes) -> None:
     """Feed one sample received on ``key`` to ``state``. A key that is not an arena key of the
     kinds the viewer shows (:func:`arena.keys.parse_key`), a payload that is no valid message,
-    or a message of another type than its key carries, is counted and logged, never raised."""
+    or a message of another type than its key carries, is counted and logged, never raised; so
+    is, as a last resort, anything else a sample makes the state raise (counted in ``bad``,
+    logged with the exception's type and message)."""
     try:
         kind = keys.parse_key(key).kind
         if kind not in _KIND_TYPES:
@@ -44,16 +46,20 @@ def handle_sample(state: ViewerState, key: str, payload: bytes) -> None:
     if not isinstance(msg, _KIND_TYPES[kind]):
         _log_rejected(state.on_bad(), f"{key}: a {type(msg).__name__} message on a '{kind}' key ignored")
         return
-    if isinstance(msg, EventWindow):
-        state.on_window(msg)
-    elif isinstance(msg, Track):
-        state.on_track(key, msg)
-    elif isinstance(msg, GroundTruthPose):
-        state.on_groundtruth(msg)
-    elif isinstance(msg, Telemetry):
-        state.on_telemetry(msg)
-    elif isinstance(msg, Status):
-        state.on_status(msg)
+    try:
+        if isinstance(msg, EventWindow):
+            state.on_window(msg)
+        elif isinstance(msg, Track):
+            state.on_track(key, msg)
+        elif isinstance(msg, GroundTruthPose):
+            state.on_groundtruth(msg)
+        elif isinstance(msg, Telemetry):
+            state.on_telemetry(msg)
+        elif isinstance(msg, Status):
+            state.on_status(msg)
+    except Exception as exc:   # last resort: a sample the state cannot take must not stop the viewer
+        _log_rejected(state.on_bad(), f"{key}: sample not shown ({type(exc).__name__}: {str(exc)[:300]})")
+        log.debug("%s: sample not shown", key, exc_info=True)
 
 
 def handle_alive(state: ViewerState, key: str, alive: bool) -> None:
@@ -66,7 +72,10 @@ def handle_alive(state: ViewerState, key: str, alive: bool) -> None:
     except keys.InvalidKey as exc:
         _log_rejected(state.on_bad_key(), f"liveliness token on a malformed key ignored: {exc}")
         return
-    state.on_alive(parsed.parts["role"], parsed.parts["name"], alive)
+    try:
+        state.on_alive(parsed.parts["role"], parsed.parts["name"], alive)
+    except Exception as exc:   # last resort, as in handle_sample
+        _log_rejected(state.on_bad(), f"liveliness token {key} not shown ({type(exc).__name__}: {str(exc)[:300]})")
 
 
 def subscribe(session: zenoh.Session, state: ViewerState, camera: str | None = None) -> list:
