@@ -32,7 +32,9 @@ __all__ = [
     "CameraConfig",
     "WebcamConfig",
     "RobotConfig",
-    "ZenohConfig",
+    "ZenohSettings",
+    "MODES",
+    "DEFAULT_ROUTER",
     "load_lab_config",
     "parse_lab_config",
     "NAMED_COLOURS",
@@ -57,7 +59,10 @@ NAMED_COLOURS: dict[str, tuple[int, int, int]] = {
     "cyan": (30, 180, 200),
 }
 
-_MODES = ("peer", "client", "router")
+#: Zenoh session modes
+MODES = ("peer", "client", "router")
+#: where a client connects unless told otherwise (``arena router``'s default endpoint)
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 _ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
 
 
@@ -113,11 +118,14 @@ class RobotConfig:
 
 
 @dataclass
-class ZenohConfig:
-    """How services of this lab reach Zenoh (see ``docs/deployment.md``)."""
+class ZenohSettings:
+    """How a service reaches Zenoh: the lab file's ``[zenoh]`` table (:attr:`LabConfig.zenoh`) and,
+    merged with the environment and the command line, a service's resolved settings
+    (:func:`arena.session.resolve_settings`; :func:`arena.session.to_zenoh_config` turns them into
+    a ``zenoh.Config``). See ``docs/deployment.md``."""
 
     mode: str = "client"
-    connect: list[str] = field(default_factory=list)
+    connect: list[str] = field(default_factory=lambda: [DEFAULT_ROUTER])
     listen: list[str] = field(default_factory=list)
     multicast_scouting: bool = False
     lease_ms: int | None = None
@@ -125,6 +133,14 @@ class ZenohConfig:
     tls: dict = field(default_factory=dict)  # root_ca_certificate, connect_certificate, ...
     user: str | None = None
     password: str | None = None
+    #: ``KEY:VALUE`` settings (``--cfg``): a Zenoh config path and a JSON5 value, applied last
+    cfg: list[str] = field(default_factory=list)
+
+    def describe(self) -> str:
+        """One line for logs and errors: the mode and the endpoints."""
+        ends = ", ".join(self.connect) or "none"
+        lst = f", listening on {', '.join(self.listen)}" if self.listen else ""
+        return f"{self.mode} mode, connecting to {ends}{lst}"
 
 
 @dataclass
@@ -135,7 +151,7 @@ class LabConfig:
     cameras: list[CameraConfig] = field(default_factory=list)
     webcam: WebcamConfig | None = None
     robots: list[RobotConfig] = field(default_factory=list)
-    zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     services: dict[str, dict] = field(default_factory=dict)
     path: str | None = None
 
@@ -506,24 +522,40 @@ def _colour(r: _Reader, key: str, default: tuple[int, int, int]) -> tuple[int, i
 
 
 def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | None = None) -> LabConfig:
-    """Validate a parsed TOML document and build a :class:`LabConfig`."""
+    """Validate a parsed TOML document and build a :class:`LabConfig`. Relative calibration file
+    names are taken from ``base_dir`` (the lab file's folder)."""
     root = _Reader(source, data, "")
     root.unknown(("arena", "zenoh", "cameras", "webcam", "robots", "services"))
     lab = LabConfig(path=source)
+    lab.arena = _parse_arena(root.sub("arena"))
+    lab.zenoh = _parse_zenoh(root.sub("zenoh"))
+    lab.cameras = _parse_cameras(root, base_dir)
+    if "webcam" in data:
+        lab.webcam = _parse_webcam(root.sub("webcam"), base_dir)
+    lab.robots = _parse_robots(root)
+    for role, opts in root.sub("services").table.items():
+        lab.services[role] = parse_service_options(role, opts, source)
+    return lab
 
-    a = root.sub("arena")
+
+def _parse_arena(a: _Reader) -> ArenaConfig:
     a.unknown(("name", "size_m"))
-    lab.arena = ArenaConfig(name=a.name("name") if a.has("name") else "arena",
-                            size_m=a.pair("size_m", (1.83, 1.83), positive=True))
+    return ArenaConfig(name=a.name("name") if a.has("name") else "arena",
+                       size_m=a.pair("size_m", (1.83, 1.83), positive=True))
 
-    z = root.sub("zenoh")
+
+def _parse_zenoh(z: _Reader) -> ZenohSettings:
+    """The ``[zenoh]`` table; without ``connect`` a client or peer connects to :data:`DEFAULT_ROUTER`
+    (a router connects to nothing)."""
     z.unknown(("mode", "connect", "listen", "multicast_scouting", "lease_ms", "config_file", "tls", "user", "password"))
     tls = z.table.get("tls", {})
     if not isinstance(tls, dict) or not all(isinstance(v, (str, bool)) for v in tls.values()):
         raise z._err("tls", "a table of strings (file paths) and booleans", tls)
-    lab.zenoh = ZenohConfig(
-        mode=z.str("mode", "client", choices=_MODES),
-        connect=z.str_list("connect", _ENDPOINT_RE, "endpoints like 'tcp/192.0.2.1:7447'"),
+    mode = z.str("mode", "client", choices=MODES)
+    connect = z.str_list("connect", _ENDPOINT_RE, "endpoints like 'tcp/192.0.2.1:7447'")
+    return ZenohSettings(
+        mode=mode,
+        connect=connect or ([] if mode == "router" else [DEFAULT_ROUTER]),
         listen=z.str_list("listen", _ENDPOINT_RE, "endpoints like 'tcp/0.0.0.0:7447'"),
         multicast_scouting=z.bool("multicast_scouting", False),
         lease_ms=z.int("lease_ms", None, lo=100),
@@ -533,68 +565,63 @@ def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | No
         password=z.str("password", None),
     )
 
-    cams = data.get("cameras", [])
-    if not isinstance(cams, list):
-        raise root._err("cameras", "an array of tables [[cameras]]", cams)
-    seen: set[str] = set()
-    for i, c in enumerate(cams):
-        if not isinstance(c, dict):
-            raise root._err(f"cameras[{i}]", "a table", c)
-        r = _Reader(source, c, f"cameras[{i}]")
+
+def _tables(root: _Reader, key: str) -> list[_Reader]:
+    """Readers of the array of tables ``[[key]]`` (empty when absent)."""
+    items = root.table.get(key, [])
+    if not isinstance(items, list):
+        raise root._err(key, f"an array of tables [[{key}]]", items)
+    out = []
+    for i, item in enumerate(items):
+        if not isinstance(item, dict):
+            raise root._err(f"{key}[{i}]", "a table", item)
+        out.append(_Reader(root.source, item, f"{key}[{i}]"))
+    return out
+
+
+def _parse_cameras(root: _Reader, base_dir: Path | None) -> list[CameraConfig]:
+    cameras: list[CameraConfig] = []
+    for r in _tables(root, "cameras"):
         r.unknown(("name", "width", "height", "source", "calibration", "points"))
         name = r.name("name")
-        if name in seen:
+        if any(c.name == name for c in cameras):
             raise r._err("name", "a name not used by another camera", name)
-        seen.add(name)
         calib, calib_file = _calibration(r, base_dir)
-        lab.cameras.append(CameraConfig(name=name, width=r.int("width", 640, lo=1, hi=65535),
-                                        height=r.int("height", 480, lo=1, hi=65535),
-                                        source=r.str("source", None), calibration=calib,
-                                        calibration_file=calib_file))
+        cameras.append(CameraConfig(name=name, width=r.int("width", 640, lo=1, hi=65535),
+                                    height=r.int("height", 480, lo=1, hi=65535),
+                                    source=r.str("source", None), calibration=calib,
+                                    calibration_file=calib_file))
+    return cameras
 
-    if "webcam" in data:
-        w = root.sub("webcam")
-        w.unknown(("source", "fps", "calibration", "points", "detector", "width", "height"))
-        src = w.table.get("source", "0")
-        if isinstance(src, int) and not isinstance(src, bool):
-            src = str(src)
-        if not isinstance(src, str):
-            raise w._err("source", "a device index, file path or URL", src)
-        calib, calib_file = _calibration(w, base_dir)
-        lab.webcam = WebcamConfig(source=src, fps=w.float("fps", 24.0, positive=True), calibration=calib,
-                                  calibration_file=calib_file,
-                                  detector=w.str("detector", "aruco", choices=("aruco", "hsv")))
 
-    robots = data.get("robots", [])
-    if not isinstance(robots, list):
-        raise root._err("robots", "an array of tables [[robots]]", robots)
-    seen = set()
-    ids: set[int] = set()
-    for i, rb in enumerate(robots):
-        if not isinstance(rb, dict):
-            raise root._err(f"robots[{i}]", "a table", rb)
-        r = _Reader(source, rb, f"robots[{i}]")
+def _parse_webcam(w: _Reader, base_dir: Path | None) -> WebcamConfig:
+    w.unknown(("source", "fps", "calibration", "points", "detector", "width", "height"))
+    src = w.table.get("source", "0")
+    if isinstance(src, int) and not isinstance(src, bool):
+        src = str(src)
+    if not isinstance(src, str):
+        raise w._err("source", "a device index, file path or URL", src)
+    calib, calib_file = _calibration(w, base_dir)
+    return WebcamConfig(source=src, fps=w.float("fps", 24.0, positive=True), calibration=calib,
+                        calibration_file=calib_file,
+                        detector=w.str("detector", "aruco", choices=("aruco", "hsv")))
+
+
+def _parse_robots(root: _Reader) -> list[RobotConfig]:
+    robots: list[RobotConfig] = []
+    for r in _tables(root, "robots"):
         r.unknown(("name", "color", "marker_id", "serial_url", "sprocket_diameter_m", "track_width_m",
                    "counts_per_rev", "length_m", "width_m", "hsv_range"))
         name = r.name("name")
         if name == "all":
             raise r._err("name", "any name but 'all' (reserved for commands to every robot)", name)
-        if name in seen:
+        if any(rb.name == name for rb in robots):
             raise r._err("name", "a name not used by another robot", name)
-        seen.add(name)
         marker = r.int("marker_id", None, lo=0, hi=999)
-        if marker is not None:
-            if marker in ids:
-                raise r._err("marker_id", "a marker id not used by another robot", marker)
-            ids.add(marker)
-        hsv = rb.get("hsv_range")
-        if hsv is not None:
-            ok = (isinstance(hsv, list) and len(hsv) == 2 and all(
-                isinstance(t, list) and len(t) == 3 and all(isinstance(x, int) and 0 <= x <= 255 for x in t) for t in hsv))
-            if not ok:
-                raise r._err("hsv_range", "[[h_lo, s_lo, v_lo], [h_hi, s_hi, v_hi]] with integers 0-255", hsv)
-            hsv = (tuple(hsv[0]), tuple(hsv[1]))
-        lab.robots.append(RobotConfig(
+        if marker is not None and any(rb.marker_id == marker for rb in robots):
+            raise r._err("marker_id", "a marker id not used by another robot", marker)
+        hsv = _hsv_range(r)
+        robots.append(RobotConfig(
             name=name, color_rgb=_colour(r, "color", (20, 20, 20)), marker_id=marker,
             serial_url=r.str("serial_url", None),
             sprocket_diameter_m=r.float("sprocket_diameter_m", 0.038, positive=True),
@@ -602,11 +629,18 @@ def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | No
             counts_per_rev=r.int("counts_per_rev", 1807, lo=1),
             length_m=r.float("length_m", 0.10, positive=True), width_m=r.float("width_m", 0.10, positive=True),
             hsv_range=hsv))
+    return robots
 
-    s = root.sub("services")
-    for role, opts in s.table.items():
-        lab.services[role] = parse_service_options(role, opts, source)
-    return lab
+
+def _hsv_range(r: _Reader) -> tuple | None:
+    hsv = r.table.get("hsv_range")
+    if hsv is None:
+        return None
+    ok = (isinstance(hsv, list) and len(hsv) == 2 and all(
+        isinstance(t, list) and len(t) == 3 and all(isinstance(x, int) and 0 <= x <= 255 for x in t) for t in hsv))
+    if not ok:
+        raise r._err("hsv_range", "[[h_lo, s_lo, v_lo], [h_hi, s_hi, v_hi]] with integers 0-255", hsv)
+    return (tuple(hsv[0]), tuple(hsv[1]))
 
 
 def load_lab_config(path: str | Path) -> LabConfig:

@@ -43,6 +43,9 @@ __all__ = [
     "decode",
     "MESSAGE_TYPES",
     "TRACK_STATES",
+    "TENTATIVE",
+    "CONFIRMED",
+    "COASTING",
 ]
 
 
@@ -64,7 +67,9 @@ class DecodeLimits:
 
 DEFAULT_LIMITS = DecodeLimits()
 
-TRACK_STATES = ("tentative", "confirmed", "coasting")
+#: ``Track.state``: a new track not yet reported as a robot, a robot seen in the latest window,
+#: a robot not seen lately whose position is predicted (the one definition of these names)
+TRACK_STATES = (TENTATIVE, CONFIRMED, COASTING) = ("tentative", "confirmed", "coasting")
 _INT64 = 2**63 - 1
 _POS_M = 1e4  # any coordinate beyond 10 km is garbage
 

@@ -33,16 +33,16 @@ import os
 import re
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+import dataclasses
 
 import zenoh
 
-from arena.config import ConfigError, LabConfig, load_lab_config
+from arena.config import DEFAULT_ROUTER, MODES, ConfigError, LabConfig, ZenohSettings, load_lab_config
 
 log = logging.getLogger("arena.session")
 
-DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
-MODES = ("peer", "client", "router")
+__all__ = ["DEFAULT_ROUTER", "MODES", "SessionError", "ZenohSettings", "add_zenoh_arguments", "load_lab_from_args",
+           "open_session", "parse_cfg", "resolve_settings", "to_zenoh_config"]
 
 
 class SessionError(RuntimeError):
@@ -56,76 +56,61 @@ class SessionError(RuntimeError):
         self.exit_code = exit_code
 
 
-@dataclass
-class ZenohSettings:
-    """Resolved connection settings (see module docstring for their sources)."""
+def to_zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    """Build the ``zenoh.Config`` for ``settings``; raise :class:`SessionError` (exit 2) naming a
+    config file or setting Zenoh refuses. Also callable as ``settings.to_zenoh_config()``."""
+    if settings.config_file:
+        try:
+            conf = zenoh.Config.from_file(settings.config_file)
+        except Exception as exc:  # zenoh raises ZError with the parser's text
+            raise SessionError(f"{settings.config_file}: not a usable Zenoh JSON5 config: {exc}") from None
+    else:
+        conf = zenoh.Config()
 
-    mode: str = "client"
-    connect: list[str] = field(default_factory=lambda: [DEFAULT_ROUTER])
-    listen: list[str] = field(default_factory=list)
-    multicast_scouting: bool = False
-    lease_ms: int | None = None
-    config_file: str | None = None
-    tls: dict = field(default_factory=dict)
-    user: str | None = None
-    password: str | None = None
-    #: ``KEY:VALUE`` settings (``--cfg``): a Zenoh config path and a JSON5 value, applied last
-    cfg: list[str] = field(default_factory=list)
+    def put(key: str, value) -> None:
+        try:
+            conf.insert_json5(key, json.dumps(value))
+        except Exception as exc:
+            raise SessionError(f"Zenoh setting {key}={value!r} was refused: {exc}") from None
 
-    def to_zenoh_config(self) -> zenoh.Config:
-        """Build the ``zenoh.Config`` for these settings."""
-        if self.config_file:
-            try:
-                conf = zenoh.Config.from_file(self.config_file)
-            except Exception as exc:  # zenoh raises ZError with the parser's text
-                raise SessionError(f"{self.config_file}: not a usable Zenoh JSON5 config: {exc}") from None
-        else:
-            conf = zenoh.Config()
+    put("mode", settings.mode)
+    if settings.connect:
+        put("connect/endpoints", list(settings.connect))
+    if settings.listen:
+        put("listen/endpoints", list(settings.listen))
+    put("scouting/multicast/enabled", bool(settings.multicast_scouting))
+    put("timestamping/enabled", {"router": True, "peer": True, "client": True})
+    # Senders on a host whose clock runs slightly ahead must not have their samples dropped.
+    put("timestamping/drop_future_timestamp", False)
+    if conf.get_json("connect/retry") in ("null", ""):
+        # Reconnect to a restarted router within ~1 s (Zenoh's default backoff grows to 4 s).
+        put("connect/retry", {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2})
+    key = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
+    if not settings.config_file or conf.get_json(key) == "1000":
+        # Samples with congestion control DROP (event windows, tracks) wait up to 50 ms for
+        # room in the transmit queue before being dropped, not Zenoh's 1 ms: on a busy 2-core
+        # host the transmit task is often off the CPU that long, and windows were lost.
+        put(key, DROP_WAIT_US)
+    if settings.lease_ms:
+        put("transport/link/tx/lease", int(settings.lease_ms))
+        put("transport/link/tx/keep_alive", 4)
+    for k, v in settings.tls.items():
+        put(f"transport/link/tls/{k}", v)
+    if settings.user is not None:
+        put("transport/auth/usrpwd/user", settings.user)
+        put("transport/auth/usrpwd/password", settings.password or "")
+    for item in settings.cfg:
+        key, value = parse_cfg(item)
+        try:
+            conf.insert_json5(key, value)
+        except Exception as exc:  # zenoh.ZError: an unknown key or a value that is not JSON5
+            raise SessionError(f"--cfg {item!r} was refused: {_cfg_refusal(str(exc))}") from None
+    return conf
 
-        def put(key: str, value) -> None:
-            try:
-                conf.insert_json5(key, json.dumps(value))
-            except Exception as exc:
-                raise SessionError(f"Zenoh setting {key}={value!r} was refused: {exc}") from None
 
-        put("mode", self.mode)
-        if self.connect:
-            put("connect/endpoints", list(self.connect))
-        if self.listen:
-            put("listen/endpoints", list(self.listen))
-        put("scouting/multicast/enabled", bool(self.multicast_scouting))
-        put("timestamping/enabled", {"router": True, "peer": True, "client": True})
-        # Senders on a host whose clock runs slightly ahead must not have their samples dropped.
-        put("timestamping/drop_future_timestamp", False)
-        if conf.get_json("connect/retry") in ("null", ""):
-            # Reconnect to a restarted router within ~1 s (Zenoh's default backoff grows to 4 s).
-            put("connect/retry", {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2})
-        key = "transport/link/tx/queue/congestion_control/drop/wait_before_drop"
-        if not self.config_file or conf.get_json(key) == "1000":
-            # Samples with congestion control DROP (event windows, tracks) wait up to 50 ms for
-            # room in the transmit queue before being dropped, not Zenoh's 1 ms: on a busy 2-core
-            # host the transmit task is often off the CPU that long, and windows were lost.
-            put(key, DROP_WAIT_US)
-        if self.lease_ms:
-            put("transport/link/tx/lease", int(self.lease_ms))
-            put("transport/link/tx/keep_alive", 4)
-        for k, v in self.tls.items():
-            put(f"transport/link/tls/{k}", v)
-        if self.user is not None:
-            put("transport/auth/usrpwd/user", self.user)
-            put("transport/auth/usrpwd/password", self.password or "")
-        for item in self.cfg:
-            key, value = parse_cfg(item)
-            try:
-                conf.insert_json5(key, value)
-            except Exception as exc:  # zenoh.ZError: an unknown key or a value that is not JSON5
-                raise SessionError(f"--cfg {item!r} was refused: {_cfg_refusal(str(exc))}") from None
-        return conf
-
-    def describe(self) -> str:
-        ends = ", ".join(self.connect) or "none"
-        lst = f", listening on {', '.join(self.listen)}" if self.listen else ""
-        return f"{self.mode} mode, connecting to {ends}{lst}"
+# The method form, for code holding settings: arena.config defines the dataclass without Zenoh
+# (its pure-core contract forbids importing it), so the Zenoh half is attached here.
+ZenohSettings.to_zenoh_config = to_zenoh_config  # type: ignore[attr-defined]
 
 
 def parse_cfg(item: str) -> tuple[str, str]:
@@ -191,17 +176,9 @@ def load_lab_from_args(args: argparse.Namespace | None) -> LabConfig | None:
 def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | None = None) -> ZenohSettings:
     """Merge defaults, the lab config, the environment and ``args`` into :class:`ZenohSettings`."""
     s = ZenohSettings()
-    if lab is not None:
+    if lab is not None:  # a copy: the lab's own settings are not changed below
         z = lab.zenoh
-        s.mode = z.mode
-        if z.connect or z.mode == "router":
-            s.connect = list(z.connect)
-        s.listen = list(z.listen)
-        s.multicast_scouting = z.multicast_scouting
-        s.lease_ms = z.lease_ms
-        s.config_file = z.config_file
-        s.tls = dict(z.tls)
-        s.user, s.password = z.user, z.password
+        s = dataclasses.replace(z, connect=list(z.connect), listen=list(z.listen), tls=dict(z.tls), cfg=list(z.cfg))
     env = os.environ
     if env.get("ARENA_ZENOH_MODE"):
         s.mode = env["ARENA_ZENOH_MODE"]

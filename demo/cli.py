@@ -16,6 +16,7 @@ import math
 import subprocess
 import sys
 import time
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
@@ -140,115 +141,75 @@ def _print_table(line: str, quiet: bool, t0: float | None, duration: float) -> N
     print(header + "\n" + text, flush=True)
 
 
-def run(args) -> int:
+def _usage_error(args) -> str | None:
+    """What is wrong with the demo's flags, or None."""
     if not 1 <= args.robots <= 16:
-        print("arena demo: --robots must be between 1 and 16", file=sys.stderr)
-        return 2
+        return "--robots must be between 1 and 16"
     if not 0.05 <= args.power <= 1.0:
-        print("arena demo: --power must be in (0, 1], e.g. 1.0 or 0.5", file=sys.stderr)
-        return 2
+        return "--power must be in (0, 1], e.g. 1.0 or 0.5"
     if args.duration <= 0:
-        print("arena demo: --duration must be positive", file=sys.stderr)
-        return 2
+        return "--duration must be positive"
     if not 0 <= args.observer_nice <= 19:
-        print("arena demo: --observer-nice must be in 0..19 (a process may only lower its priority)",
-              file=sys.stderr)
+        return "--observer-nice must be in 0..19 (a process may only lower its priority)"
+    return None
+
+
+@dataclass
+class _Run:
+    """One demo run: its folder, endpoints and robots, and what happened so far (updated while it
+    runs, so an exception keeps what was seen before it)."""
+
+    run_dir: Path
+    endpoint: str        # the router's
+    cam_port: int
+    web_port: int
+    robot_base: int      # robot i's serial port is robot_base + i
+    robots: list[str]
+    t_start: float = field(default_factory=time.monotonic)
+    t_missions: float | None = None  # start of the missions, for the live table (None: no table)
+    first_track_s: float | None = None
+    interrupted: bool = False
+
+    @property
+    def z(self) -> list[str]:
+        return ["-e", self.endpoint]
+
+    @property
+    def logs(self) -> Path:
+        return self.run_dir / "logs"
+
+    @property
+    def calib(self) -> Path:
+        return self.run_dir / "cam0.calib.json"
+
+
+def run(args) -> int:
+    error = _usage_error(args)
+    if error:
+        print(f"arena demo: {error}", file=sys.stderr)
         return 2
     if args.prepare:
         return _prepare()
     from arena.service import stop_on_signals
-    from arena.session import SessionError, ZenohSettings, open_session
+    from arena.session import SessionError
 
     run_dir = Path(args.out) / datetime.now().strftime("demo-%Y%m%d-%H%M%S")
     run_dir.mkdir(parents=True, exist_ok=False)
-    logs = run_dir / "logs"
     base = _free_ports(3 + args.robots)   # router, camera, webcam, one per robot
-    endpoint = f"tcp/127.0.0.1:{base}"
-    z = ["-e", endpoint]
-    cam_port, web_port, robot_base = base + 1, base + 2, base + 3
-    robots = _robot_names(args.robots)
+    demo = _Run(run_dir, f"tcp/127.0.0.1:{base}", base + 1, base + 2, base + 3, _robot_names(args.robots))
     print(f"arena demo: {args.robots} robots, {args.mission} missions at {args.power:.0%} power, "
           f"{args.lighting} light, {args.duration:.0f} s; run folder {run_dir}", flush=True)
     stop = stop_on_signals()
-    t_start = time.monotonic()
-    clock = {"t0": None}  # start of the missions, for the live table
-    first_track_s = None
-    sup = Supervisor(logs)
+    demo.t_start = time.monotonic()
+    sup = Supervisor(demo.logs)
     code = 0
     failure = None
-    interrupted = False
-    calib = run_dir / "cam0.calib.json"
     try:
-        _compile_kernels(sup)
-        # router, simulator, recorder and scorer start together (each waits for the router); the
-        # services that need the simulator's devices or calibration follow once it runs. Every
-        # process imports numpy/numba/OpenCV (seconds of CPU), so overlapping them is what makes
-        # the first track come early.
-        sim = python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
-                         "--camera-port", str(cam_port), "--webcam-port", str(web_port),
-                         "--robot-base-port", str(robot_base), "--layout", _layout(args.mission),
-                         "--truth-csv", str(run_dir / "truth.csv"), "--calibration-out", str(calib),
-                         "--record-raw", str(run_dir / "events.raw"), "--publish-truth", *z)
-        early = [sup.start(ProcSpec("router", python_cmd("router", "-l", endpoint, "--name", "demo"),
-                                    ready="listening on"), wait=False),
-                 sup.start(ProcSpec("sim", sim, ready="running", ready_timeout_s=90), wait=False),
-                 sup.start(ProcSpec("scorer", [sys.executable, "-m", "demo.scorer", *z], ready="scorer ready",
-                                    on_line=lambda ln: _print_table(ln, args.quiet, clock["t0"], args.duration)),
-                           wait=False)]
-        early[0].wait_ready()
-        with open_session(ZenohSettings(mode="client", connect=[endpoint]), wait_s=10) as session:
-            alive = _AliveSet(session)
-            early[1].wait_ready()
-            # the recorder starts once the simulator has written the camera's calibration, which
-            # places the event image under the robots in Foxglove's 3D panel
-            early.append(sup.start(ProcSpec("recorder", python_cmd("record", str(run_dir / "arena.mcap"), "--name",
-                                                                   "demo", "--calibration", str(calib), *z),
-                                            ready_check=alive.has("recorder", "demo"), ready_timeout_s=90,
-                                            nice=args.observer_nice), wait=False))
-            specs = [ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{cam_port}", "--camera", "cam0", *z),
-                              ready_check=alive.has("edge", "cam0"), ready_timeout_s=90)]
-            specs.append(ProcSpec("tracker", python_cmd("track", "--camera", "cam0", "--calibration", str(calib),
-                                                     "--tracker", args.tracker, "--fleet-size", str(args.robots),
-                                                     "--name", "cam0", "--tracks-out", str(run_dir / "tracks.csv"),
-                                                     "--state", str(run_dir / "tracker-state.json"), *z),
-                                  ready_check=alive.has("tracker", "cam0"), ready_timeout_s=90))
-            web = f"http://127.0.0.1:{web_port}"
-            specs.append(ProcSpec("groundtruth", python_cmd("groundtruth", "--video", f"{web}/stream.mjpg",
-                                                         "--calibration", f"{web}/calibration.json", "--clock", "stream",
-                                                         "--name", "webcam", "--csv", str(run_dir / "groundtruth.csv"),
-                                                         *_robot_markers(args.robots), *z),
-                                  ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90,
-                                  nice=args.observer_nice))
-            if args.view:
-                specs.append(ProcSpec("viewer", python_cmd("view", "--port", str(args.view_port), "--name", "demo",
-                                                           "--calibration", str(calib), *z), ready="viewer on",
-                                  nice=args.observer_nice))
-            bridge = python_cmd("bridge", "run", *[a for i, r in enumerate(robots)
-                                                   for a in ("--robot", f"{r}=socket://127.0.0.1:{robot_base + i}")],
-                                "--name", "demo", "--log-dir", str(run_dir / "telemetry"), "--require-all", *z)
-            specs.append(ProcSpec("bridge", bridge, ready_check=alive.has("bridge", "demo"), ready_timeout_s=90,
-                                  stop_timeout_s=5))
-            for proc in early[2:] + [sup.start(spec, wait=False) for spec in specs]:
-                proc.wait_ready()
-            print(f"all services up ({time.monotonic() - t_start:.1f} s after launch)"
-                  + (f"; viewer: http://127.0.0.1:{args.view_port}" if args.view else ""), flush=True)
-            _start_missions(session, robots, args)
-            print(f"missions started ({time.monotonic() - t_start:.1f} s after launch)", flush=True)
-            t_missions = time.monotonic()
-            clock["t0"] = t_missions
-            while time.monotonic() - t_missions < args.duration + 1 and not stop.is_set():
-                dead = [n for n in sup.dead() if not n.startswith("cmd-")]
-                if dead:
-                    raise RuntimeError(f"{', '.join(dead)} stopped unexpectedly; see {logs}")
-                if first_track_s is None and alive.tracks_seen:
-                    first_track_s = alive.tracks_seen - t_start
-                stop.wait(0.2)
-            interrupted = stop.is_set()
-            clock["t0"] = None   # the missions are over: no more live tables while stopping
+        _run_lab(sup, demo, args, stop)
     except KeyboardInterrupt:
         print("\narena demo: interrupted, stopping (robots first)...", flush=True)
         code = 130
-        interrupted = True
+        demo.interrupted = True
     except (RuntimeError, SessionError) as exc:
         print(f"arena demo: {exc}", file=sys.stderr)
         code = 1
@@ -257,13 +218,105 @@ def run(args) -> int:
         codes = sup.stop_all(first=["bridge", "sim"])
     services = {name for name in sup.procs if not name.startswith("cmd-")}
     pids = {name: p.popen.pid for name, p in sup.procs.items()}
-    summary = _finish(run_dir, args, first_track_s, {n: c for n, c in codes.items() if n in services}, pids,
+    summary = _finish(run_dir, args, demo.first_track_s, {n: c for n, c in codes.items() if n in services}, pids,
                       killed=[n for n in sup.killed() if n in services],
                       died={n: c for n, c in sup.died().items() if n in services},
-                      failure=failure, interrupted=interrupted)
+                      failure=failure, interrupted=demo.interrupted)
     if code == 0 and not summary["ok"]:
         code = 1
     return code
+
+
+def _run_lab(sup: Supervisor, demo: _Run, args, stop) -> None:
+    """Compile, start every process, run the missions for ``args.duration`` and return (the
+    caller stops the processes). Raises RuntimeError when a service dies or a mission is refused."""
+    from arena.session import ZenohSettings, open_session
+
+    _compile_kernels(sup)
+    # router, simulator, recorder and scorer start together (each waits for the router); the
+    # services that need the simulator's devices or calibration follow once it runs. Every
+    # process imports numpy/numba/OpenCV (seconds of CPU), so overlapping them is what makes
+    # the first track come early.
+    early = _start_router_sim_scorer(sup, demo, args)
+    early[0].wait_ready()
+    with open_session(ZenohSettings(mode="client", connect=[demo.endpoint]), wait_s=10) as session:
+        alive = _AliveSet(session)
+        early[1].wait_ready()
+        # the recorder starts once the simulator has written the camera's calibration, which
+        # places the event image under the robots in Foxglove's 3D panel
+        early.append(sup.start(ProcSpec("recorder", python_cmd("record", str(demo.run_dir / "arena.mcap"), "--name",
+                                                               "demo", "--calibration", str(demo.calib), *demo.z),
+                                        ready_check=alive.has("recorder", "demo"), ready_timeout_s=90,
+                                        nice=args.observer_nice), wait=False))
+        specs = _service_specs(demo, args, alive)
+        for proc in early[2:] + [sup.start(spec, wait=False) for spec in specs]:
+            proc.wait_ready()
+        print(f"all services up ({time.monotonic() - demo.t_start:.1f} s after launch)"
+              + (f"; viewer: http://127.0.0.1:{args.view_port}" if args.view else ""), flush=True)
+        _start_missions(session, demo.robots, args)
+        print(f"missions started ({time.monotonic() - demo.t_start:.1f} s after launch)", flush=True)
+        _watch_missions(sup, demo, alive, args.duration, stop)
+
+
+def _start_router_sim_scorer(sup: Supervisor, demo: _Run, args) -> list:
+    """Start the router, the simulator and the live scorer without waiting for them."""
+    sim = python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
+                     "--camera-port", str(demo.cam_port), "--webcam-port", str(demo.web_port),
+                     "--robot-base-port", str(demo.robot_base), "--layout", _layout(args.mission),
+                     "--truth-csv", str(demo.run_dir / "truth.csv"), "--calibration-out", str(demo.calib),
+                     "--record-raw", str(demo.run_dir / "events.raw"), "--publish-truth", *demo.z)
+    return [sup.start(ProcSpec("router", python_cmd("router", "-l", demo.endpoint, "--name", "demo"),
+                               ready="listening on"), wait=False),
+            sup.start(ProcSpec("sim", sim, ready="running", ready_timeout_s=90), wait=False),
+            sup.start(ProcSpec("scorer", [sys.executable, "-m", "demo.scorer", *demo.z], ready="scorer ready",
+                               on_line=lambda ln: _print_table(ln, args.quiet, demo.t_missions, args.duration)),
+                      wait=False)]
+
+
+def _service_specs(demo: _Run, args, alive: _AliveSet) -> list[ProcSpec]:
+    """The services that need the simulator's devices or calibration, in start order: edge,
+    tracker, ground truth, viewer (with ``--view``), bridge."""
+    z = demo.z
+    specs = [ProcSpec("edge", python_cmd("edge", f"tcp://127.0.0.1:{demo.cam_port}", "--camera", "cam0", *z),
+                      ready_check=alive.has("edge", "cam0"), ready_timeout_s=90)]
+    specs.append(ProcSpec("tracker", python_cmd("track", "--camera", "cam0", "--calibration", str(demo.calib),
+                                                 "--tracker", args.tracker, "--fleet-size", str(args.robots),
+                                                 "--name", "cam0", "--tracks-out", str(demo.run_dir / "tracks.csv"),
+                                                 "--state", str(demo.run_dir / "tracker-state.json"), *z),
+                          ready_check=alive.has("tracker", "cam0"), ready_timeout_s=90))
+    web = f"http://127.0.0.1:{demo.web_port}"
+    specs.append(ProcSpec("groundtruth", python_cmd("groundtruth", "--video", f"{web}/stream.mjpg",
+                                                     "--calibration", f"{web}/calibration.json", "--clock", "stream",
+                                                     "--name", "webcam", "--csv", str(demo.run_dir / "groundtruth.csv"),
+                                                     *_robot_markers(args.robots), *z),
+                          ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90,
+                          nice=args.observer_nice))
+    if args.view:
+        specs.append(ProcSpec("viewer", python_cmd("view", "--port", str(args.view_port), "--name", "demo",
+                                                   "--calibration", str(demo.calib), *z), ready="viewer on",
+                              nice=args.observer_nice))
+    bridge = python_cmd("bridge", "run", *[a for i, r in enumerate(demo.robots)
+                                           for a in ("--robot", f"{r}=socket://127.0.0.1:{demo.robot_base + i}")],
+                        "--name", "demo", "--log-dir", str(demo.run_dir / "telemetry"), "--require-all", *z)
+    specs.append(ProcSpec("bridge", bridge, ready_check=alive.has("bridge", "demo"), ready_timeout_s=90,
+                          stop_timeout_s=5))
+    return specs
+
+
+def _watch_missions(sup: Supervisor, demo: _Run, alive: _AliveSet, duration: float, stop) -> None:
+    """Let the missions run ``duration`` + 1 s (or until ``stop``), noting the first track; raise
+    RuntimeError when a service stops."""
+    demo.t_missions = time.monotonic()
+    t_missions = demo.t_missions
+    while time.monotonic() - t_missions < duration + 1 and not stop.is_set():
+        dead = [n for n in sup.dead() if not n.startswith("cmd-")]
+        if dead:
+            raise RuntimeError(f"{', '.join(dead)} stopped unexpectedly; see {demo.logs}")
+        if demo.first_track_s is None and alive.tracks_seen:
+            demo.first_track_s = alive.tracks_seen - demo.t_start
+        stop.wait(0.2)
+    demo.interrupted = stop.is_set()
+    demo.t_missions = None   # the missions are over: no more live tables while stopping
 
 
 def _prepare() -> int:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from arena.messages import CONFIRMED
 from groundtruth.metrics import Scores
 from groundtruth.report import (NA, ROBOT_HEADERS, fmt, markdown_table, plot_errors, plot_trajectories, robot_rows,
                                 summary_rows)
@@ -37,7 +38,7 @@ def webcam_as_tracks(webcam: np.ndarray) -> np.ndarray:
         out[name] = w[name]
     out["track_id"] = w["robot"]
     out["robot"] = w["robot"]
-    out["state"] = "confirmed"
+    out["state"] = CONFIRMED
     out["u_px"] = out["v_px"] = np.nan
     return out
 

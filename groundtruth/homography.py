@@ -16,21 +16,20 @@ Calibration JSON (shared with the tracker)::
      "height_m": 0.045,                # optional: plane height of "points" above the mats
      "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}    # >= 4 points
 
-Other keys (e.g. ``camera``, ``floor_points``) are kept but ignored here.
+Other keys (e.g. ``camera``, ``floor_points``) are kept but ignored here. The fit, the error
+type and the reading of the file are :mod:`arena.homography`'s (shared with the tracker).
 """
 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-
-class CalibrationError(ValueError):
-    """A calibration file or point set that cannot give a homography."""
+from arena.homography import (CalibrationError, apply_homography, calibration_points, fit_homography,
+                              read_calibration_json)
 
 
 @dataclass
@@ -59,33 +58,19 @@ class Homography:
                     image_size: tuple[int, int] | None = None) -> "Homography":
         """Fit from >= 4 correspondences: ``pixels`` (n, 2) px and ``arena_m`` (n, 2) m.
 
-        Exact for 4 points, least squares (normalised DLT) for more.
+        Exact for 4 points, least squares for more (:func:`arena.homography.fit_homography`).
         Raises :class:`CalibrationError` for too few, non-finite or degenerate points
-        (three of them on one line).
+        (all on one line).
         """
-        px = np.asarray(pixels, dtype=float).reshape(-1, 2)
-        ar = np.asarray(arena_m, dtype=float).reshape(-1, 2)
-        if len(px) != len(ar):
-            raise CalibrationError(f"{len(px)} pixel points but {len(ar)} arena points")
-        if len(px) < 4:
-            raise CalibrationError(f"a homography needs at least 4 points, got {len(px)}")
-        if not (np.all(np.isfinite(px)) and np.all(np.isfinite(ar))):
-            raise CalibrationError("calibration points must be finite numbers")
-        for pts, what in ((px, "pixel"), (ar, "arena")):
-            # degenerate if the points do not span a plane (all within a line)
-            centred = pts - pts.mean(0)
-            sv = np.linalg.svd(centred, compute_uv=False)
-            if sv[-1] < 1e-6 * max(sv[0], 1e-12):
-                raise CalibrationError(f"the {what} points are collinear: need 4 spread-out points")
-        return cls(_dlt(px, ar), float(height_m), image_size)
+        return cls(fit_homography(pixels, arena_m), float(height_m), image_size)
 
     def to_arena(self, uv) -> np.ndarray:
         """Map pixels ``(n, 2)`` (or one ``(2,)``) to arena metres, same shape."""
-        return _apply(self.H, uv)
+        return apply_homography(self.H, uv)
 
     def to_pixel(self, xy) -> np.ndarray:
         """Map arena metres ``(n, 2)`` (or one ``(2,)``) to pixels, same shape."""
-        return _apply(self.Hinv, xy)
+        return apply_homography(self.Hinv, xy)
 
     def reprojection_error_m(self, pixels, arena_m) -> np.ndarray:
         """Distance (m) between ``arena_m`` and the mapped ``pixels``, per point."""
@@ -102,52 +87,10 @@ class Homography:
         return d
 
 
-def _normaliser(pts: np.ndarray) -> np.ndarray:
-    """Similarity moving the points' centroid to 0 and their mean distance to sqrt(2)."""
-    c = pts.mean(0)
-    d = np.linalg.norm(pts - c, axis=1).mean()
-    s = math.sqrt(2) / d
-    return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1.0]])
-
-
-def _dlt(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Normalised direct linear transform (Hartley & Zisserman, alg. 4.2), float64:
-    exact for 4 points, algebraic least squares for more."""
-    ts, td = _normaliser(src), _normaliser(dst)
-    a = _apply(ts, src)
-    b = _apply(td, dst)
-    rows = []
-    for (x, y), (u, v) in zip(a, b):
-        rows.append([-x, -y, -1, 0, 0, 0, u * x, u * y, u])
-        rows.append([0, 0, 0, -x, -y, -1, v * x, v * y, v])
-    h = np.linalg.svd(np.array(rows))[2][-1].reshape(3, 3)
-    h = np.linalg.inv(td) @ h @ ts
-    return h / h[2, 2]
-
-
-def _apply(m: np.ndarray, pts) -> np.ndarray:
-    a = np.asarray(pts, dtype=float)
-    flat = a.reshape(-1, 2)
-    h = flat @ m[:, :2].T + m[:, 2]
-    out = h[:, :2] / h[:, 2:3]
-    return out.reshape(a.shape)
-
-
 def homography_from_calibration(cal: dict, key: str = "points") -> Homography:
     """Build a :class:`Homography` from a calibration-JSON dict (``key`` selects the point
     list, e.g. ``"floor_points"``). Raises :class:`CalibrationError` with a clear message."""
-    if not isinstance(cal, dict):
-        raise CalibrationError("calibration must be a JSON object")
-    pts = cal.get(key)
-    if not isinstance(pts, list) or not pts:
-        raise CalibrationError(f"calibration has no {key!r} list of {{'pixel', 'arena_m'}} points")
-    try:
-        px = [[float(v) for v in p["pixel"]] for p in pts]
-        ar = [[float(v) for v in p["arena_m"]] for p in pts]
-    except (KeyError, TypeError, ValueError) as e:
-        raise CalibrationError(f"each of {key!r} needs 'pixel': [u, v] and 'arena_m': [x, y] ({e})") from None
-    if any(len(p) != 2 for p in px + ar):
-        raise CalibrationError(f"each 'pixel' and 'arena_m' in {key!r} must have 2 numbers")
+    px, ar = calibration_points(cal, key)
     size = cal.get("image_size")
     image_size = (int(size[0]), int(size[1])) if isinstance(size, list) and len(size) == 2 else None
     height = 0.0 if key == "floor_points" else float(cal.get("height_m", 0.0) or 0.0)
@@ -156,14 +99,7 @@ def homography_from_calibration(cal: dict, key: str = "points") -> Homography:
 
 def load_calibration(path: str | Path, key: str = "points") -> Homography:
     """Read a calibration JSON file and fit its homography (see the module docstring)."""
-    path = Path(path)
-    try:
-        cal = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise CalibrationError(f"calibration file not found: {path}") from None
-    except (OSError, json.JSONDecodeError) as e:
-        raise CalibrationError(f"cannot read calibration {path}: {e}") from None
-    return homography_from_calibration(cal, key)
+    return homography_from_calibration(read_calibration_json(path), key)
 
 
 def save_calibration(path: str | Path, pixels, arena_m, image_size: tuple[int, int],

@@ -1,6 +1,7 @@
 """Scoring tracks against ground truth: the one scorer every benchmark in the project uses.
 
-Pure numpy/scipy: no files except the two CSV readers, no clocks, no Zenoh.
+Pure numpy/scipy apart from the CSV readers and writers of tracks and truth (``read_tracks_csv``,
+``read_truth_csv``, ``write_tracks_csv``, ``write_truth_csv``): no other files, no clocks, no Zenoh.
 
 Inputs (arena frame: metres, yaw in rad counter-clockwise from +x; times in µs):
 
@@ -50,6 +51,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from arena.messages import TENTATIVE
 
 TRACK_COLUMNS = ("t_us", "track_id", "robot", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps",
                  "u_px", "v_px", "state", "n_events")
@@ -316,7 +319,7 @@ class _RobotTruth:
 
 def align(tracks: np.ndarray, truth: np.ndarray, gate_m: float = 0.10, *, moved_only: bool = True,
           move_speed_mps: float = 0.01, move_dist_m: float = 0.01, merge_us: int = 1000,
-          max_gap_us: int = 500_000, exclude_states: Iterable[str] = ("tentative",)) -> Alignment:
+          max_gap_us: int = 500_000, exclude_states: Iterable[str] = (TENTATIVE,)) -> Alignment:
     """Put tracks and truth on common frames (see the module docstring for the rules).
 
     ``exclude_states``: track rows in these states are not scored (a tentative track is not yet a
@@ -324,90 +327,113 @@ def align(tracks: np.ndarray, truth: np.ndarray, gate_m: float = 0.10, *, moved_
     """
     if gate_m <= 0:
         raise ValueError(f"gate must be positive, got {gate_m} m")
-    tracks = np.asarray(tracks)
+    tracks = _scored_rows(np.asarray(tracks), exclude_states)
     truth = np.asarray(truth)
-    excl = set(exclude_states)
-    if excl and len(tracks):
-        tracks = tracks[~np.isin(tracks["state"], list(excl))]
-    tracks = tracks[np.isfinite(tracks["x_m"]) & np.isfinite(tracks["y_m"])] if len(tracks) else tracks
-
     robots = sorted(set(truth["robot"].tolist()))
     rt = {r: _RobotTruth(truth[truth["robot"] == r], move_speed_mps, move_dist_m, max_gap_us)
           for r in robots}
     track_ids = sorted(set(tracks["track_id"].tolist()), key=_natural_key) if len(tracks) else []
     tid_index = {t: i for i, t in enumerate(track_ids)}
 
+    frame_t, row_frame = _frame_times(tracks, truth, merge_us)
+    tracks, row_frame, frame_t, n_dropped = _inside_truth_span(tracks, row_frame, frame_t, truth)
+    gt = _TruthOnFrames([rt[r] for r in robots], frame_t, tracks, moved_only)
+
+    order = np.argsort(row_frame, kind="stable")
+    bounds = np.searchsorted(row_frame[order], np.arange(len(frame_t) + 1))
+    frames: list[Frame] = []
+    n_ignored = 0
+    for f in range(len(frame_t)):
+        frame, ignored = _frame(f, int(frame_t[f]), order[bounds[f]:bounds[f + 1]], tracks, gt, tid_index, gate_m)
+        frames.append(frame)
+        n_ignored += ignored
+    return Alignment(robots=robots, track_ids=track_ids, frames=frames, gate_m=float(gate_m),
+                     n_frames_dropped=n_dropped, n_ignored=n_ignored)
+
+
+def _scored_rows(tracks: np.ndarray, exclude_states: Iterable[str]) -> np.ndarray:
+    """The track rows that are scored: not in ``exclude_states``, with a finite position."""
+    excl = set(exclude_states)
+    if excl and len(tracks):
+        tracks = tracks[~np.isin(tracks["state"], list(excl))]
+    return tracks[np.isfinite(tracks["x_m"]) & np.isfinite(tracks["y_m"])] if len(tracks) else tracks
+
+
+def _frame_times(tracks: np.ndarray, truth: np.ndarray, merge_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """(frame times µs, frame index of each track row): the tracks' update times, merged within
+    ``merge_us`` and with long silences filled; the truth's own times when there are no tracks."""
     if len(tracks):
         frame_t, row_frame = _frame_groups(tracks["t_us"], merge_us)
         filled = _fill_gaps(frame_t)
-        row_frame = np.searchsorted(filled, frame_t)[row_frame]
-        frame_t = filled
-    else:
-        frame_t = np.unique(truth["t_us"]) if len(truth) else np.zeros(0, np.int64)
-        row_frame = np.zeros(0, dtype=np.int64)
+        return filled, np.searchsorted(filled, frame_t)[row_frame]
+    frame_t = np.unique(truth["t_us"]) if len(truth) else np.zeros(0, np.int64)
+    return frame_t, np.zeros(0, dtype=np.int64)
 
-    # drop frames outside the truth's time span
-    n_dropped = 0
+
+def _inside_truth_span(tracks: np.ndarray, row_frame: np.ndarray, frame_t: np.ndarray,
+                       truth: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Drop the frames outside the truth's time span and their rows: ``(tracks, row_frame,
+    frame_t, number of frames dropped)``."""
     if len(truth) and len(frame_t):
         t0, t1 = truth["t_us"].min(), truth["t_us"].max()
         keep = (frame_t >= t0) & (frame_t <= t1)
-        n_dropped = int(np.count_nonzero(~keep))
         new_index = np.cumsum(keep) - 1
         row_keep = keep[row_frame]
-        tracks, row_frame = tracks[row_keep], new_index[row_frame[row_keep]]
-        frame_t = frame_t[keep]
-    elif not len(truth):
-        n_dropped, frame_t = len(frame_t), frame_t[:0]
-        tracks, row_frame = tracks[:0], row_frame[:0]
+        return tracks[row_keep], new_index[row_frame[row_keep]], frame_t[keep], int(np.count_nonzero(~keep))
+    if not len(truth):
+        return tracks[:0], row_frame[:0], frame_t[:0], len(frame_t)
+    return tracks, row_frame, frame_t, 0
 
-    # truth at each frame (presence, counted) and at each row's own time (position)
-    nR, nF = len(robots), len(frame_t)
-    present = np.zeros((nR, nF), dtype=bool)
-    counted = np.zeros((nR, nF), dtype=bool)
-    gtx = np.full((nR, nF), np.nan)
-    gty = np.full((nR, nF), np.nan)
-    gtyaw = np.full((nR, nF), np.nan)
-    row_gx = np.full((nR, len(tracks)), np.nan)
-    row_gy = np.full((nR, len(tracks)), np.nan)
-    for i, r in enumerate(robots):
-        present[i] = rt[r].present(frame_t)
-        counted[i] = present[i] & ((frame_t >= rt[r].t_moved) if moved_only else True)
-        if len(rt[r].t):
-            gtx[i], gty[i], gtyaw[i] = rt[r].at(frame_t)
-            if len(tracks):
-                row_gx[i], row_gy[i], _ = rt[r].at(tracks["t_us"])
 
-    order = np.argsort(row_frame, kind="stable")
-    bounds = np.searchsorted(row_frame[order], np.arange(nF + 1))
-    frames: list[Frame] = []
+class _TruthOnFrames:
+    """The robots' truth at each frame (presence, counted, pose: (robots, frames) arrays) and at
+    each track row's own time (position: (robots, rows) arrays)."""
+
+    def __init__(self, robots: list[_RobotTruth], frame_t: np.ndarray, tracks: np.ndarray, moved_only: bool):
+        n_r, n_f = len(robots), len(frame_t)
+        self.present = np.zeros((n_r, n_f), dtype=bool)
+        self.counted = np.zeros((n_r, n_f), dtype=bool)
+        self.x = np.full((n_r, n_f), np.nan)
+        self.y = np.full((n_r, n_f), np.nan)
+        self.yaw = np.full((n_r, n_f), np.nan)
+        self.row_x = np.full((n_r, len(tracks)), np.nan)
+        self.row_y = np.full((n_r, len(tracks)), np.nan)
+        for i, r in enumerate(robots):
+            self.present[i] = r.present(frame_t)
+            self.counted[i] = self.present[i] & ((frame_t >= r.t_moved) if moved_only else True)
+            if len(r.t):
+                self.x[i], self.y[i], self.yaw[i] = r.at(frame_t)
+                if len(tracks):
+                    self.row_x[i], self.row_y[i], _ = r.at(tracks["t_us"])
+
+
+def _frame(f: int, t_us: int, rows: np.ndarray, tracks: np.ndarray, gt: _TruthOnFrames,
+           tid_index: dict[str, int], gate_m: float) -> tuple[Frame, int]:
+    """Frame ``f`` from its track ``rows``; returns it and how many rows it ignored (tracks on
+    robots that have not moved yet are neither TP nor FP)."""
+    pres = np.flatnonzero(gt.present[:, f])
+    d = np.hypot(gt.row_x[np.ix_(pres, rows)] - tracks["x_m"][rows][None, :],
+                 gt.row_y[np.ix_(pres, rows)] - tracks["y_m"][rows][None, :])
+    keep_rows = np.ones(len(rows), dtype=bool)
+    dontcare = ~gt.counted[pres, f]
     n_ignored = 0
-    for f in range(nF):
-        rows = order[bounds[f]:bounds[f + 1]]
-        pres = np.flatnonzero(present[:, f])
-        d = np.hypot(row_gx[np.ix_(pres, rows)] - tracks["x_m"][rows][None, :],
-                     row_gy[np.ix_(pres, rows)] - tracks["y_m"][rows][None, :])
-        keep_rows = np.ones(len(rows), dtype=bool)
-        dontcare = ~counted[pres, f]
-        if dontcare.any() and len(rows):
-            # tracks on robots that have not moved yet are neither TP nor FP
-            ri, ci = _gated_assignment(d, gate_m)
-            drop = ci[dontcare[ri]]
-            keep_rows[drop] = False
-            n_ignored += len(drop)
-        gsel = pres[~dontcare]
-        rows = rows[keep_rows]
-        frames.append(Frame(
-            t_us=int(frame_t[f]),
-            gt=gsel.astype(np.int64),
-            trk=np.asarray([tid_index[t] for t in tracks["track_id"][rows]], dtype=np.int64),
-            dist_m=d[np.ix_(~dontcare, keep_rows)],
-            gt_xy=np.stack([gtx[gsel, f], gty[gsel, f]], axis=1),
-            trk_xy=np.stack([tracks["x_m"][rows], tracks["y_m"][rows]], axis=1),
-            gt_yaw=gtyaw[gsel, f],
-            trk_yaw=tracks["yaw_rad"][rows].astype(np.float64),
-        ))
-    return Alignment(robots=robots, track_ids=track_ids, frames=frames, gate_m=float(gate_m),
-                     n_frames_dropped=n_dropped, n_ignored=n_ignored)
+    if dontcare.any() and len(rows):
+        ri, ci = _gated_assignment(d, gate_m)
+        drop = ci[dontcare[ri]]
+        keep_rows[drop] = False
+        n_ignored = len(drop)
+    gsel = pres[~dontcare]
+    rows = rows[keep_rows]
+    return Frame(
+        t_us=t_us,
+        gt=gsel.astype(np.int64),
+        trk=np.asarray([tid_index[t] for t in tracks["track_id"][rows]], dtype=np.int64),
+        dist_m=d[np.ix_(~dontcare, keep_rows)],
+        gt_xy=np.stack([gt.x[gsel, f], gt.y[gsel, f]], axis=1),
+        trk_xy=np.stack([tracks["x_m"][rows], tracks["y_m"][rows]], axis=1),
+        gt_yaw=gt.yaw[gsel, f],
+        trk_yaw=tracks["yaw_rad"][rows].astype(np.float64),
+    ), n_ignored
 
 
 def _natural_key(s: str):

@@ -65,8 +65,9 @@ from google.protobuf.duration_pb2 import Duration
 from google.protobuf.timestamp_pb2 import Timestamp
 
 from arena import codec
+from arena.homography import calibration_points, fit_homography
 from arena.keys import InvalidKey, parse_key
-from arena.messages import EventWindow, MessageError, Track
+from arena.messages import CONFIRMED, EventWindow, MessageError, Track
 
 __all__ = ["ARENA_FRAME", "FoxgloveMessage", "FoxgloveConverter", "RobotShape", "pixel_to_arena_homography",
            "quaternion_from_yaw", "robot_frame", "schema_data", "SCHEMAS", "TOPIC_PREFIX"]
@@ -121,19 +122,9 @@ def robot_frame(slot: str) -> str:
 def pixel_to_arena_homography(calibration: dict) -> np.ndarray:
     """3x3 homography sensor px -> arena m fitted to a calibration dict
     (``{"image_size": [w, h], "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}``, >= 4 points).
-    Raises ValueError with what is wrong."""
-    try:
-        pts = calibration["points"]
-        px = np.array([p["pixel"] for p in pts], dtype=np.float64).reshape(-1, 2)
-        am = np.array([p["arena_m"] for p in pts], dtype=np.float64).reshape(-1, 2)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"calibration needs 'points' with 'pixel' and 'arena_m' pairs ({exc})") from None
-    if len(px) < 4:
-        raise ValueError(f"calibration needs at least 4 points, got {len(px)}")
-    H, _ = cv2.findHomography(px, am, 0)
-    if H is None or not np.isfinite(H).all():
-        raise ValueError("calibration points are degenerate (collinear or repeated)")
-    return H
+    Raises :class:`arena.homography.CalibrationError` (a ValueError) with what is wrong."""
+    px, am = calibration_points(calibration)
+    return fit_homography(px, am)
 
 
 @dataclass(frozen=True)
@@ -278,7 +269,7 @@ class FoxgloveConverter:
         msgs.append(FoxgloveMessage(TF_TOPIC, "foxglove.FrameTransforms", tf.SerializeToString(),
                                     log_time_ns, stamp_ns))
 
-        alpha = 0.85 if t.state == "confirmed" else 0.4
+        alpha = 0.85 if t.state == CONFIRMED else 0.4
         h = shape.height_m
         entity = SceneEntity(
             timestamp=ts, frame_id=ARENA_FRAME, id=frame, frame_locked=False,

@@ -10,6 +10,10 @@ lab config's camera table (``arena.config.CameraConfig.calibration``). Optional 
 ``height_m`` (height above the mats of the plane the points were taken on, default 0) and
 ``camera_height_m`` (height of the lens above the mats), used for the parallax correction
 of robots seen at their shell-top height (see :meth:`Calibration.parallax_factor`).
+
+The fit, the error type and the file reader are :mod:`arena.homography`'s, shared with the
+ground truth, the viewer and the recorder; this module adds what the tracker needs on top
+(scale, Jacobian, parallax, finding the mat's corners).
 """
 
 from __future__ import annotations
@@ -22,11 +26,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from arena.homography import CalibrationError, apply_homography, calibration_points, fit_homography
+from arena.homography import read_calibration_json as _read_json
+
 __all__ = ["Calibration", "CalibrationError", "load_calibration"]
-
-
-class CalibrationError(ValueError):
-    """A calibration that cannot be used; the message says what is wrong."""
 
 
 @dataclass
@@ -55,20 +58,11 @@ class Calibration:
         """Fit the homography to >= 4 pairs of (u, v) px and (x, y) m (least squares)."""
         px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         am = np.asarray(arena_m, dtype=np.float64).reshape(-1, 2)
-        if px.shape != am.shape:
-            raise CalibrationError(f"{len(px)} pixel points but {len(am)} arena points")
-        if len(px) < 4:
-            raise CalibrationError(f"a homography needs at least 4 point pairs, got {len(px)}")
-        if not (np.isfinite(px).all() and np.isfinite(am).all()):
-            raise CalibrationError("calibration points must be finite numbers")
         w, h = (int(image_size[0]), int(image_size[1]))
+        H = fit_homography(px, am)
         if w <= 0 or h <= 0:
             raise CalibrationError(f"image_size must be positive [w, h] px, got {list(image_size)}")
-        H, _ = cv2.findHomography(px, am, 0)
-        if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-18:
-            raise CalibrationError("the calibration points are degenerate (collinear or repeated): "
-                                   "give 4 or more points spread over the arena, e.g. the mat corners")
-        return cls(H=H / H[2, 2], image_size=(w, h), pixels=px, arena_m=am)
+        return cls(H=H, image_size=(w, h), pixels=px, arena_m=am)
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "calibration") -> "Calibration":
@@ -77,15 +71,13 @@ class Calibration:
             raise CalibrationError(f"{source}: expected a JSON object with image_size and points")
         try:
             size = d["image_size"]
-            pts = d["points"]
-            px = [p["pixel"] for p in pts]
-            am = [p["arena_m"] for p in pts]
             size = (int(size[0]), int(size[1]))
         except (KeyError, TypeError, IndexError, ValueError) as exc:
             raise CalibrationError(
                 f"{source}: expected {{\"image_size\": [w, h], \"points\": [{{\"pixel\": [u, v], "
                 f"\"arena_m\": [x, y]}}, ...]}} ({type(exc).__name__}: {exc})") from None
         try:
+            px, am = calibration_points(d)
             cal = cls.from_points(px, am, size)
             cal.height_m = float(d.get("height_m", 0.0) or 0.0)
             cam_h = d.get("camera_height_m")
@@ -131,11 +123,11 @@ class Calibration:
     # -- mapping ----------------------------------------------------------
     def to_arena(self, uv) -> np.ndarray:
         """Sensor (u, v) px -> arena (x, y) m; accepts (2,) or (n, 2)."""
-        return _apply(self.H, uv)
+        return apply_homography(self.H, uv)
 
     def to_pixel(self, xy) -> np.ndarray:
         """Arena (x, y) m -> sensor (u, v) px; accepts (2,) or (n, 2)."""
-        return _apply(self._Hinv, xy)
+        return apply_homography(self._Hinv, xy)
 
     def point_to_arena(self, u: float, v: float) -> tuple[float, float]:
         """One sensor pixel (u, v) px -> arena (x, y) m, as Python floats (fast path)."""
@@ -175,15 +167,6 @@ class Calibration:
         return float(np.sqrt((d ** 2).sum(1).mean()))
 
 
-def _apply(H: np.ndarray, pts) -> np.ndarray:
-    p = np.asarray(pts, dtype=np.float64)
-    single = p.ndim == 1
-    p = p.reshape(-1, 2)
-    q = p @ H[:, :2].T + H[:, 2]
-    out = q[:, :2] / q[:, 2:3]
-    return out[0] if single else out
-
-
 def load_calibration(path: str | Path, camera: str | None = None) -> Calibration:
     """Load a calibration JSON file, or a lab config TOML (its camera ``camera`` or the first)."""
     path = Path(path)
@@ -199,11 +182,7 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
         if cam.calibration is None:
             raise CalibrationError(f"{path}: camera {cam.name!r} has no calibration")
         return Calibration.from_dict(cam.calibration, f"{path} camera {cam.name}")
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CalibrationError(f"{path}: not a readable JSON file ({exc})") from None
-    return Calibration.from_dict(data, str(path))
+    return Calibration.from_dict(_read_json(path), str(path))
 
 
 def mat_points(side_m: float) -> np.ndarray:

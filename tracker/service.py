@@ -223,8 +223,8 @@ def _opt(x: float) -> float | None:
 class LiveTracker:
     """Wraps a :class:`Pipeline` for one camera: decode, order checks, track messages.
 
-    Pure apart from the clock it is given: ``handle(payload, now_ns)`` returns the Track
-    messages to publish; the Zenoh wiring is in :func:`run_live`.
+    No Zenoh: ``handle(payload, now_ns)`` returns the Track messages to publish (the wiring is in
+    :func:`run_live`); it logs, counts into ``svc``'s status and reads the host clock for timings.
     """
 
     #: a window this much older than the last one is a restarted stream (e.g. a replay

@@ -13,10 +13,10 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from arena import codec
+from arena.homography import CalibrationError, calibration_points, fit_homography
 from arena.messages import EventWindow, GroundTruthPose, Status, Telemetry, Track
 
 #: Display colours (RGB) as in the paper: ON (positive) black, OFF (negative) blue, no event white.
@@ -35,17 +35,10 @@ def arena_to_pixel_homography(calibration: dict) -> np.ndarray:
     """3x3 homography arena m -> sensor px fitted to a calibration dict
     (``{"image_size": [w, h], "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}``, >= 4 points)."""
     try:
-        pts = calibration["points"]
-        px = np.array([p["pixel"] for p in pts], dtype=np.float64).reshape(-1, 2)
-        am = np.array([p["arena_m"] for p in pts], dtype=np.float64).reshape(-1, 2)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ViewerConfigError(f"calibration needs points with 'pixel' and 'arena_m' pairs ({exc})") from None
-    if len(px) < 4:
-        raise ViewerConfigError(f"calibration needs at least 4 points, got {len(px)}")
-    H, _ = cv2.findHomography(am, px, 0)
-    if H is None or not np.isfinite(H).all():
-        raise ViewerConfigError("calibration points are degenerate (collinear or repeated)")
-    return H
+        px, am = calibration_points(calibration)
+        return fit_homography(am, px)
+    except CalibrationError as exc:
+        raise ViewerConfigError(str(exc)) from None
 
 
 def project(H: np.ndarray, xy: np.ndarray) -> np.ndarray:
