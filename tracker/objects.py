@@ -9,11 +9,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["Observation", "TrackedRobot", "TENTATIVE", "CONFIRMED", "COASTING"]
+# the track states are part of the Track message's contract: one definition, in arena/ (re-exported)
+from arena.messages import COASTING, CONFIRMED, TENTATIVE
 
-TENTATIVE = "tentative"
-CONFIRMED = "confirmed"
-COASTING = "coasting"
+__all__ = ["Observation", "TrackedRobot", "TENTATIVE", "CONFIRMED", "COASTING"]
 
 
 @dataclass
