@@ -16,11 +16,15 @@ import sys
 import threading
 import time
 from importlib.metadata import entry_points
+from typing import TYPE_CHECKING
 
 from arena import __version__
-from arena.keys import ALL_ALIVE, ALL_STATUS, InvalidKey, parse_key
-from arena.messages import EventWindow, Message, MessageError, decode
 from arena.session import SessionError, add_zenoh_arguments, open_session
+
+# The parser is built for every command (`arena track` too): what only `status` and `watch` use
+# (the message codec, msgpack, the key space) is imported when they run.
+if TYPE_CHECKING:
+    from arena.messages import Message
 
 log = logging.getLogger("arena")
 
@@ -122,6 +126,9 @@ def _fmt_rate(v: float) -> str:
 
 
 def _run_status(args) -> int:
+    from arena.keys import ALL_ALIVE, ALL_STATUS, InvalidKey, parse_key
+    from arena.messages import MessageError, decode
+
     statuses: dict[tuple[str, str], dict] = {}
     alive: set[tuple[str, str]] = set()
     lock = threading.Lock()
@@ -199,6 +206,8 @@ def _register_watch(sub) -> None:
 
 
 def _jsonable(msg: Message) -> dict:
+    from arena.messages import EventWindow
+
     d = {"kind": msg.KIND, **msg.to_dict()}
     if isinstance(msg, EventWindow):
         d["data"] = f"<{len(msg.data)} bytes>"
@@ -224,6 +233,7 @@ def _line(key: str, msg: Message) -> str:
 
 
 def _run_watch(args) -> int:
+    from arena.messages import MessageError, decode
     from arena.service import stop_on_signals, wait_until_stopped
 
     stop = stop_on_signals()
@@ -331,6 +341,17 @@ def main(argv: list[str] | None = None) -> int:
     except SessionError as exc:
         print(f"arena {args.command}: {exc}", file=sys.stderr)
         return exc.exit_code
+    except ImportError as exc:
+        # a package a command imports only when it runs (lazily, for a fast start) is missing
+        if not exc.name or exc.name.split(".")[0] in _OWN_PACKAGES:
+            raise
+        print(f"arena {args.command}: {missing_package_hint(exc)}", file=sys.stderr)
+        return 2
+
+
+#: the project's own top-level packages: an ImportError of one of them is a bug, not a missing install
+_OWN_PACKAGES = {"arena", "camera_edge", "tracker", "robot_bridge", "groundtruth", "simulator", "demo", "viewer",
+                 "recorder", "ros2"}
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,6 +1,7 @@
 """The `arena` CLI as a user runs it: real subprocesses against a real router."""
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -127,22 +128,37 @@ def test_every_example_in_every_help_parses():
 MISSING_MCAP = "import sys; sys.modules['mcap'] = None; from arena.cli import main; sys.exit(main(sys.argv[1:]))"
 
 
-@pytest.mark.parametrize("argv", [["record", "out.mcap"], ["replay", "--help"], ["record"]])
-def test_a_command_whose_package_is_missing_says_what_to_install(argv, tmp_path):
-    """A machine without mcap (a fresh one, before it was declared): record/replay stay listed in
-    --help and, when called, print one line naming the package and the pip command (exit 2)."""
-    helps = subprocess.run([sys.executable, "-c", MISSING_MCAP, "--help"], capture_output=True, text=True,
-                           timeout=60, cwd=tmp_path)
-    listed = [ln for ln in helps.stdout.splitlines() if ln.strip().startswith(("record", "replay"))]
-    assert len(listed) == 2 and all("pip install mcap" in ln for ln in listed), helps.stdout
-    out = subprocess.run([sys.executable, "-c", MISSING_MCAP, *argv], capture_output=True, text=True,
-                         timeout=60, cwd=tmp_path)
-    assert out.returncode == 2
-    assert out.stdout == ""
+def test_a_command_whose_package_is_missing_when_it_runs_says_what_to_install(tmp_path):
+    """A machine without mcap (a fresh one, before it was declared): `arena record` prints one line
+    naming the package and the pip command (exit 2), not a traceback."""
+    out = subprocess.run([sys.executable, "-c", MISSING_MCAP, "record", "out.mcap", "--duration", "5"],
+                         capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"arena {argv[0]}: needs the Python package 'mcap'")
+    assert len(lines) == 1 and lines[0].startswith("arena record: needs the Python package 'mcap'")
     assert "pip install mcap" in lines[0] and "Traceback" not in out.stderr
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_command_whose_import_fails_stays_listed_and_says_what_to_install(tmp_path):
+    """A command (a real entry point of an installed distribution) whose module imports a package
+    that is not there stays listed in --help and, called, prints one line with the pip command."""
+    site = tmp_path / "site"
+    dist = site / "arena_extra_cmd-0.1.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: arena-extra-cmd\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[arena.commands]\nextracmd = arena_extra_cmd:register\n")
+    (site / "arena_extra_cmd.py").write_text("import notinstalled_pkg_xyz  # its dependency is missing\n"
+                                            "def register(sub):\n    sub.add_parser('extracmd')\n")
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    helps = subprocess.run(arena_cmd("--help"), capture_output=True, text=True, timeout=60, env=env)
+    listed = [ln for ln in helps.stdout.splitlines() if ln.strip().startswith("extracmd")]
+    assert listed and "pip install notinstalled_pkg_xyz" in listed[0], helps.stdout
+    for argv in (["extracmd"], ["extracmd", "--help"], ["extracmd", "a", "--flag"]):
+        out = subprocess.run(arena_cmd(*argv), capture_output=True, text=True, timeout=60, env=env)
+        assert out.returncode == 2 and out.stdout == ""
+        lines = out.stderr.strip().splitlines()
+        assert len(lines) == 1 and "pip install notinstalled_pkg_xyz" in lines[0], out.stderr
 
 
 def test_watch_prints_a_message_published_by_another_process(router, service):
