@@ -22,7 +22,9 @@ from pathlib import Path
 #: one kernel per module the demo compiles: "package.module:function"
 KERNELS = ("simulator.dvs:_dvs_block", "simulator.world:_physics_step", "simulator.evt3:_encode",
            "arena.formats.evt3:_decode", "arena.codec:_encode_planes", "arena.codec:_decode_planes",
-           "tracker.dbscan:_grid_kernel", "tracker.accumulate:_apply", "tracker.detect:_cluster_moments")
+           "tracker.dbscan:_cores_kernel", "tracker.density:_update", "tracker.accumulate:_apply",
+           "tracker.detect:_cluster_moments",
+           "arena.formats.csvfile:_parse_lines", "arena.formats.csvfile:_format_lines")
 
 
 def numba_cache_dirs(pkg_dir: Path) -> list[Path]:
@@ -71,7 +73,7 @@ def compile_sim_edge() -> None:
 
 
 def compile_tracker() -> None:
-    """The tracker's kernels (its grid DBSCAN alone takes ~5 s)."""
+    """The tracker's kernels (its grid DBSCAN alone takes ~5 s) and the CSV reader's."""
     from simulator.camera import CeilingCamera
     from tracker.calibration import Calibration
     from tracker.pipeline import Pipeline
@@ -79,6 +81,20 @@ def compile_tracker() -> None:
 
     cal = Calibration.from_dict(CeilingCamera(640, 480).calibration(), "the simulated camera")
     warm_tracker(lambda: Pipeline(cal, fleet_size=4))
+    compile_csv()
+
+
+def compile_csv() -> None:
+    """The CSV reader's and writer's kernels (``arena track --input X.csv``, ``arena convert``)."""
+    import tempfile
+
+    from arena.events import make_events
+    from arena.formats import read_events, write_events
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "warm.csv"
+        write_events(path, make_events([1], [2], [1], [3]), 640, 480)
+        read_events(path, width=640, height=480)
 
 
 PARTS = {"sim-edge": compile_sim_edge, "tracker": compile_tracker}

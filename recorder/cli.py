@@ -3,15 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import socket
 import sys
 import time
 
 from arena.keys import EVERYTHING, InvalidKey, validate_name
-from arena.service import stop_on_signals
 from arena.session import SessionError, add_zenoh_arguments, open_session
-from recorder.mcapio import RunFileError, find_run_file
+
+# Registered at every `arena` command's start: the MCAP library (~20 ms) and the service runtime
+# are imported by the commands that use them. A machine without mcap still lists record/replay as
+# unavailable with the pip command (arena.cli catches this ImportError), as when it was imported.
+if importlib.util.find_spec("mcap") is None:
+    raise ImportError("No module named 'mcap'", name="mcap")
 
 
 def _formatter(prog: str) -> argparse.HelpFormatter:
@@ -95,6 +100,7 @@ def _name(value: str | None, command: str, prefix: str) -> str | None:
 def run_record(args) -> int:
     """Run ``arena record``; returns the exit code."""
     from arena.config import ConfigError, apply_service_options
+    from arena.service import stop_on_signals
     from arena.session import load_lab_from_args
     from recorder.service import record
 
@@ -149,7 +155,8 @@ def run_record(args) -> int:
 
 def run_replay(args) -> int:
     """Run ``arena replay``; returns the exit code."""
-    from arena.service import Service
+    from arena.service import Service, stop_on_signals
+    from recorder.mcapio import RunFileError, find_run_file
     from recorder.service import replay, wait_stop
 
     name = _name(args.name, "replay", "replay")
@@ -273,6 +280,7 @@ def register_foxglove(sub) -> None:
 def run_foxglove(args) -> int:
     """Run ``arena foxglove``; returns the exit code."""
     from arena.config import ConfigError
+    from arena.service import stop_on_signals
     from arena.session import load_lab_from_args
 
     name = _name(args.name, "foxglove", "foxglove")

@@ -20,8 +20,6 @@ from contextlib import ExitStack
 from pathlib import Path
 from urllib.parse import urlparse
 
-import numpy as np
-
 from arena.clitools import RUNTIME, fail
 from arena.session import add_zenoh_arguments
 
@@ -280,6 +278,8 @@ class _TruthPublisher:
         self.pubs = [session.declare_publisher(sim_truth_key(n)) for n in self.names]
 
     def publish(self, truth, n_events: int) -> None:
+        import numpy as np
+
         from arena.messages import GroundTruthPose
         self.svc.count("events_out", n_events)
         if len(truth) == 0:

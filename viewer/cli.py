@@ -11,7 +11,6 @@ from pathlib import Path
 
 from arena.config import ConfigError
 from arena.keys import InvalidKey, validate_name
-from arena.service import Service, stop_on_signals
 from arena.session import SessionError, add_zenoh_arguments, load_lab_from_args, open_session
 
 
@@ -88,6 +87,7 @@ def run(args) -> int:
     from viewer.server import ViewerServer
     from viewer.service import subscribe
     from arena.config import apply_service_options
+    from arena.service import Service, stop_on_signals
     from viewer.state import ViewerConfigError, ViewerState
 
     try:
