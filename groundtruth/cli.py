@@ -20,7 +20,7 @@ def _formatter(prog: str) -> argparse.HelpFormatter:
 # arena eval
 # --------------------------------------------------------------------------------------------
 def register_eval(sub) -> None:
-    """Add ``arena eval``: score a tracks CSV against a truth CSV."""
+    """Add ``arena eval``: score a tracks CSV against truth (our CSV, a mocap bag or a pose CSV)."""
     p = sub.add_parser(
         "eval", help="score tracks against ground truth (MOTA, IDF1, HOTA, MAE, ...)",
         formatter_class=_formatter,
@@ -29,16 +29,28 @@ def register_eval(sub) -> None:
                     "(MOTA, MOTP, ID switches, fragmentations), IDF1 and HOTA. A robot counts once it\n"
                     "has moved. Frames are the tracks' update times; truth is interpolated there.\n\n"
                     "tracks CSV: t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events\n"
-                    "truth CSV:  t_us,robot,x_m,y_m[,yaw_rad,...] (simulator truth or `arena groundtruth`)",
+                    "truth:      a truth CSV t_us,robot,x_m,y_m[,yaw_rad,...] (simulator truth or\n"
+                    "            `arena groundtruth`: arena frame, the tracks' clock), or motion capture:\n"
+                    "            a rosbag2 folder / .mcap file of geometry_msgs/msg/PoseStamped (one topic\n"
+                    "            per rigid body, z up), or a pose CSV with a time (t_s, t_ms, t_us or t_ns),\n"
+                    "            a name (name, robot or body), x, y [, z] and qx,qy,qz,qw or yaw / yaw_deg.\n"
+                    "Mocap truth is put on the tracks' clock (--time-offset) and frame (--align) first;\n"
+                    "the offset and the fit (rotation, translation, scale, residuals) are printed and\n"
+                    "written to the JSON. See docs/mocap.md.",
         epilog="Examples:\n"
                "  arena eval --tracks tracks.csv --truth truth.csv\n"
                "  arena eval --tracks tracks.csv --truth truth.csv --gate-cm 5 --json scores.json\n"
                "  arena eval --tracks tracks.csv --truth webcam_gt.csv --report eval_report/\n"
+               "  arena eval --tracks tracks.csv --truth mocap_bag/ --time-offset auto --align rigid\n"
+               "  arena eval --tracks tracks.csv --truth run.mcap --truth-topic '/vrpn*/pose' \\\n"
+               "      --body zumo1=/vrpn_client_node/Zumo_01/pose --time-offset -1700000000.1234\n"
                "Exit code 0 when scored; 1 when there was no ground truth to score against (no frame\n"
-               "inside the truth's time span, or no robot that moved: MOTA, IDF1, HOTA are n/a); 2 for\n"
-               "unreadable input (including a truth file without rows).")
+               "inside the truth's time span, or no robot that moved: MOTA, IDF1, HOTA are n/a; or\n"
+               "mocap truth that could not be aligned); 2 for unreadable input (including a truth\n"
+               "file without rows).")
     p.add_argument("--tracks", required=True, metavar="CSV", help="tracker output (arena track --tracks-out)")
-    p.add_argument("--truth", required=True, metavar="CSV", help="truth or ground-truth poses")
+    p.add_argument("--truth", required=True, metavar="CSV|BAG",
+                   help="truth CSV, pose CSV, rosbag2 folder or .mcap file")
     p.add_argument("--gate-cm", type=float, default=10.0, help="match distance gate in cm (default 10)")
     p.add_argument("--all-frames", action="store_true",
                    help="count robots from the start, not only once they have moved")
@@ -46,44 +58,140 @@ def register_eval(sub) -> None:
                    help="also score rows whose state is 'tentative' (excluded by default)")
     p.add_argument("--json", metavar="OUT", help="write the scores as JSON to OUT")
     p.add_argument("--report", metavar="DIR", help="write report.md with plots into DIR")
+    m = p.add_argument_group("truth on another clock or in another frame (motion capture)")
+    m.add_argument("--time-offset", metavar="S|auto", default="0",
+                   help="truth time + S seconds = track time (default 0); 'auto' estimates it by\n"
+                        "cross-correlating the robots' speeds, refined on the positions")
+    m.add_argument("--align", choices=("none", "rigid", "similarity"), default=None,
+                   help="fit the truth's frame to the tracks' (2-D): none (default for a truth CSV),\n"
+                        "rigid (default for a bag or pose CSV) or similarity (also a scale)")
+    m.add_argument("--truth-topic", metavar="PATTERN", action="append", default=[],
+                   help="bag: read the PoseStamped topics matching this glob (repeatable; default all)")
+    m.add_argument("--body", metavar="NAME=TOPIC", action="append", default=[],
+                   help="robot NAME is the bag topic TOPIC (or the pose CSV's body TOPIC); repeatable.\n"
+                        "Default name: the topic's element before /pose, else its last element")
     p.set_defaults(func=run_eval)
+
+
+def _load_truth(args):
+    """(truth array, truth kind, description lines) of ``--truth``; raises CsvFormatError/MocapError."""
+    from groundtruth.metrics import TRUTH_REQUIRED, read_truth_csv
+    from groundtruth.mocap import MocapError, is_pose_csv_header, read_pose_bag, read_pose_csv
+
+    path = Path(args.truth)
+    bodies = {}
+    for b in args.body:
+        name, sep, source = b.partition("=")
+        if not sep or not name.strip() or not source.strip():
+            raise MocapError(f"--body {b!r}: expected NAME=TOPIC (e.g. zumo1=/vrpn_client_node/zumo1/pose)")
+        bodies[name.strip()] = source.strip()
+    if path.is_dir() or path.suffix.lower() == ".mcap":
+        if not path.exists():
+            raise MocapError(f"truth bag not found: {path}")
+        bag = read_pose_bag(path, args.truth_topic, bodies)
+        stamps = "header stamps" if not bag.log_stamps else f"{bag.log_stamps} message(s) without a header stamp: log time"
+        lines = [f"truth: {len(bag.topics)} rigid bod{'y' if len(bag.topics) == 1 else 'ies'} from {path} ({stamps}): "
+                 + ", ".join(f"{t} -> {n}" for t, n in bag.topics.items())]
+        return bag.truth, "bag", lines
+    if path.is_file():
+        with path.open(encoding="utf-8", errors="replace") as fh:
+            header = [h.strip() for h in fh.readline().split(",")]
+        if not all(c in header for c in TRUTH_REQUIRED) and is_pose_csv_header(header):
+            if args.truth_topic:
+                raise MocapError("--truth-topic is for a bag; a pose CSV names its bodies in a column (use --body)")
+            truth = read_pose_csv(path, bodies)
+            names = ", ".join(sorted(set(truth["robot"])))
+            return truth, "pose-csv", [f"truth: pose CSV {path}, bodies {names or 'none'}"]
+    if args.body or args.truth_topic:
+        raise MocapError("--body and --truth-topic are for a bag or a pose CSV, not a truth CSV "
+                         "(t_us,robot,x_m,y_m: its robot column names the robots)")
+    return read_truth_csv(args.truth), "csv", []
+
+
+def _alignment_lines(al) -> list[str]:
+    lines = []
+    if al.offset_source == "auto":
+        e = al.estimate
+        err = f"+-{e.stderr_us / 1000:.3f} ms" if e.stderr_us != float("inf") else "no timing in the positions"
+        lines.append(f"time offset: {al.offset_us * 1e-6:+.6f} s (auto: speed cross-correlation peak "
+                     f"r={e.correlation:.3f}, next peak r={e.next_best:.3f}, at {e.coarse_us * 1e-6:+.4f} s; "
+                     f"refined on the positions, {err})")
+        if not e.correlation >= 0.5 or e.next_best > 0.95 * e.correlation:
+            lines.append("note: the speed correlation is weak or ambiguous: check the offset, or give --time-offset S")
+    elif al.offset_us:
+        lines.append(f"time offset: {al.offset_us * 1e-6:+.6f} s (given)")
+    f = al.fit
+    if f is not None and f.mode != "none":
+        tf = f.transform
+        lines.append(f"frame ({f.mode} fit, pairs by {f.pairing}, {f.n_pairs} pairs, {f.n_rejected} beyond the gate): "
+                     f"rotation {tf.to_dict()['rotation_deg']:.4f} deg, translation ({tf.tx_m:.5f}, {tf.ty_m:.5f}) m, "
+                     f"scale {tf.scale:.6f}; residual RMS {f.rms_m * 1e3:.2f} mm, max {f.max_m * 1e3:.2f} mm")
+    elif f is not None:
+        lines.append(f"frame: none (truth taken in the arena frame); residual RMS {f.rms_m * 1e3:.2f} mm over "
+                     f"{f.n_pairs} pairs by {f.pairing}")
+    return lines
 
 
 def run_eval(args: argparse.Namespace) -> int:
     """Run ``arena eval``; returns the exit code."""
-    from groundtruth.metrics import CsvFormatError, evaluate, read_tracks_csv, read_truth_csv
+    from groundtruth.metrics import CsvFormatError, evaluate, read_tracks_csv
+    from groundtruth.mocap import MocapError, align_truth
     from groundtruth.report import format_scores, no_ground_truth, write_eval_report, write_json
 
+    def fail(msg: str, code: int = 2) -> int:
+        print(f"arena eval: {msg}", file=sys.stderr)
+        return code
+
     if not args.gate_cm > 0:
-        print(f"arena eval: --gate-cm must be positive, got {args.gate_cm}", file=sys.stderr)
-        return 2
+        return fail(f"--gate-cm must be positive, got {args.gate_cm}")
+    auto = str(args.time_offset).strip().lower() == "auto"
+    try:
+        offset_s = None if auto else float(args.time_offset)
+        if offset_s is not None and not abs(offset_s) < 1e12:
+            raise ValueError
+    except ValueError:
+        return fail(f"--time-offset expects seconds (e.g. -0.1234) or auto, got {args.time_offset!r}")
     try:
         tracks = read_tracks_csv(args.tracks)
-        truth = read_truth_csv(args.truth)
-    except CsvFormatError as exc:
-        print(f"arena eval: {exc}", file=sys.stderr)
-        return 2
+        truth, kind, lines = _load_truth(args)
+    except (CsvFormatError, MocapError) as exc:
+        return fail(str(exc))
     if len(truth) == 0:
-        print(f"arena eval: truth file {args.truth} has a header but no rows", file=sys.stderr)
-        return 2
+        return fail(f"truth file {args.truth} has a header but no rows")
+    exclude = () if args.include_tentative else ("tentative",)
+    mode = args.align or ("none" if kind == "csv" else "rigid")
+    alignment = None
+    if auto or mode != "none" or offset_s:
+        try:
+            alignment = align_truth(tracks, truth, time_offset_us=None if auto else offset_s * 1e6, align=mode,
+                                    gate_m=args.gate_cm / 100.0, exclude_states=exclude)
+        except MocapError as exc:
+            return fail(f"cannot align the truth with the tracks: {exc}", 1)
+        truth = alignment.truth
+        lines += _alignment_lines(alignment)
+    for line in lines:
+        print(line)
     scores = evaluate(tracks, truth, gate_m=args.gate_cm / 100.0, moved_only=not args.all_frames,
-                      exclude_states=() if args.include_tentative else ("tentative",))
+                      exclude_states=exclude)
     print(format_scores(scores))
+    meta = {"tracks": str(args.tracks), "truth": str(args.truth)}
+    if alignment is not None:
+        meta["alignment"] = alignment.to_dict()
     try:
         if args.json:
-            write_json(args.json, scores, tracks=str(args.tracks), truth=str(args.truth))
+            write_json(args.json, scores, **meta)
             print(f"scores written to {args.json}")
         if args.report:
-            path = write_eval_report(args.report, scores, tracks, truth, str(args.tracks), str(args.truth))
+            path = write_eval_report(args.report, scores, tracks, truth, str(args.tracks), str(args.truth),
+                                     alignment=lines, meta={k: v for k, v in meta.items() if k == "alignment"})
             print(f"report written to {path}")
     except OSError as exc:
-        print(f"arena eval: cannot write output: {exc}", file=sys.stderr)
-        return 2
+        return fail(f"cannot write output: {exc}")
     why = no_ground_truth(scores)
     if why:
-        print(f"arena eval: nothing measured: {why} (check that --truth covers the tracks' times; "
-              "--all-frames counts robots that never moved)", file=sys.stderr)
-        return 1
+        hint = ("give --time-offset S or auto" if kind != "csv" else
+                "check that --truth covers the tracks' times; --all-frames counts robots that never moved")
+        return fail(f"nothing measured: {why} ({hint})", 1)
     return 0
 
 

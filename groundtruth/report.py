@@ -188,13 +188,18 @@ def plot_errors(path: str | Path, s: Scores) -> None:
 
 
 def write_eval_report(out_dir: str | Path, s: Scores, tracks: np.ndarray, truth: np.ndarray,
-                      tracks_name: str = "", truth_name: str = "") -> Path:
-    """Write ``report.md``, ``trajectories.png``, ``errors.png`` and ``scores.json`` into ``out_dir``."""
+                      tracks_name: str = "", truth_name: str = "", *, alignment: Sequence[str] = (),
+                      meta: dict | None = None) -> Path:
+    """Write ``report.md``, ``trajectories.png``, ``errors.png`` and ``scores.json`` into ``out_dir``.
+
+    ``alignment``: lines saying how the truth was put on the tracks' clock and frame (motion
+    capture: offset, fit, residuals), shown in a section of their own; ``meta``: more keys for
+    ``scores.json`` (e.g. the alignment as a dict)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     plot_trajectories(out / "trajectories.png", tracks, truth)
     plot_errors(out / "errors.png", s)
-    write_json(out / "scores.json", s, tracks=tracks_name, truth=truth_name)
+    write_json(out / "scores.json", s, tracks=tracks_name, truth=truth_name, **(meta or {}))
     why = no_ground_truth(s)
     md = [
         "# Tracking evaluation",
@@ -205,6 +210,7 @@ def write_eval_report(out_dir: str | Path, s: Scores, tracks: np.ndarray, truth:
         f"Gate {s.gate_cm:g} cm; a robot counts once it has moved; {s.n_frames} frames, "
         f"{s.n_robots} robot(s), {s.n_tracks} track id(s).",
         "",
+        *(["## Truth alignment", "", *(f"- {line}" for line in alignment), ""] if alignment else []),
         "## Summary",
         "",
         markdown_table(["metric", "value"], summary_rows(s)),

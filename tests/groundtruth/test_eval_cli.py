@@ -152,3 +152,109 @@ def test_eval_with_no_ground_truth_in_the_tracks_span_prints_na_and_exits_1(file
         assert line.split()[-1] == "n/a", line
     s = json.loads(out_json.read_text())["scores"]
     assert s["n_gt"] == 0 and s["mota"] is None and s["idf1"] is None and s["hota"] is None, s
+
+
+# ----------------------------------------------------------------------------------------------
+# motion capture as ground truth: a rosbag2 of PoseStamped on another clock and in another frame
+
+
+@pytest.fixture(scope="module")
+def sim_run(tmp_path_factory):
+    """The simulator's exact truth of a short 2-robot scenario and tracker-like tracks made from
+    it (every 10 ms, 2 mm noise, robots named)."""
+    from simulator.scenarios import Scenario, generate
+    from test_mocap import tracks_from_truth
+
+    rec = generate(Scenario(n_robots=2, pattern="circle", power=1.0, duration_s=6.0, seed=7))
+    truth = np.empty(rec.truth.size, dtype=TRUTH_DTYPE)
+    for name in ("t_us", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps"):
+        truth[name] = rec.truth[name]
+    truth["robot"] = np.asarray(rec.robot_names, dtype=object)[rec.truth["robot"]]
+    d = tmp_path_factory.mktemp("mocap")
+    tracks = tracks_from_truth(truth, named=True)
+    write_tracks_csv(d / "tracks.csv", tracks)
+    write_truth_csv(d / "truth.csv", truth)
+    return d, truth, tracks
+
+
+def test_eval_scores_a_mocap_bag_with_unknown_offset_and_frame(sim_run, tmp_path):
+    import math
+
+    from groundtruth.mocap import Transform2D
+    from test_mocap import to_mocap, write_pose_bag
+
+    d, truth, _ = sim_run
+    frame = Transform2D(math.radians(30), 0.5, -0.2, 1.0)
+    offset_us = -(1_700_000_000_000_000 + 123_400)      # mocap on the wall clock, 123.4 ms off the second
+    bag = write_pose_bag(tmp_path / "mocap_bag", to_mocap(truth, frame, offset_us))
+    out, direct = tmp_path / "mocap.json", tmp_path / "direct.json"
+    r = arena("eval", "--tracks", d / "tracks.csv", "--truth", bag, "--time-offset", "auto", "--align", "rigid",
+              "--json", out, "--report", tmp_path / "rep")
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "time offset: -1700000000.123" in r.stdout and "frame (rigid fit, pairs by name" in r.stdout, r.stdout
+    al = json.loads(out.read_text())["alignment"]
+    assert al["time_offset_source"] == "auto"
+    assert abs(al["time_offset_s"] * 1e6 - offset_us) < 1000, al
+    f = al["frame"]
+    assert abs(f["translation_m"][0] - 0.5) < 1e-3 and abs(f["translation_m"][1] + 0.2) < 1e-3, f
+    assert abs(math.radians(f["rotation_deg"]) - frame.rotation_rad) * 1.0 < 1e-3, f    # < 1 mm at 1 m
+    assert f["scale"] == 1.0 and f["rms_mm"] < 4.0
+    assert "## Truth alignment" in (tmp_path / "rep" / "report.md").read_text()
+    # the same scores as against the simulator's truth itself
+    r2 = arena("eval", "--tracks", d / "tracks.csv", "--truth", d / "truth.csv", "--json", direct)
+    assert r2.returncode == 0, r2.stderr
+    s, s0 = json.loads(out.read_text())["scores"], json.loads(direct.read_text())["scores"]
+    # a robot counts once it has moved: from the simulator's velocities directly, from the mocap's
+    # positions over 0.2 s, so a few frames more or less at each start
+    for key in ("n_gt", "n_tp", "n_fp", "n_fn", "id_switches"):
+        assert abs(s[key] - s0[key]) <= 0.01 * s0["n_gt"], (key, s[key], s0[key])
+    for key in ("precision", "recall", "mota", "idf1", "hota"):
+        assert s[key] == pytest.approx(s0[key], abs=0.005), key
+    assert s["mae_cm"] == pytest.approx(s0["mae_cm"], abs=0.02)
+    assert s["heading_mae_deg"] == pytest.approx(s0["heading_mae_deg"], abs=0.2)
+
+
+def test_eval_mocap_bag_without_offset_says_what_to_do(sim_run, tmp_path):
+    from groundtruth.mocap import Transform2D
+    from test_mocap import to_mocap, write_pose_bag
+
+    d, truth, _ = sim_run
+    bag = write_pose_bag(tmp_path / "bag", to_mocap(truth, Transform2D(0.5, 0.5, -0.2), -1_700_000_000_000_000))
+    r = arena("eval", "--tracks", d / "tracks.csv", "--truth", bag)     # default offset 0: nothing overlaps
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "--time-offset" in r.stderr
+
+
+def test_eval_pose_csv_with_given_offset(sim_run, tmp_path):
+    import math
+
+    from groundtruth.mocap import Transform2D
+    from test_mocap import to_mocap
+
+    d, truth, _ = sim_run
+    frame = Transform2D(math.radians(-75), 1.1, 0.3, 1.0)
+    m = to_mocap(truth, frame, 2_500_000)
+    p = tmp_path / "poses.csv"
+    with p.open("w") as fh:
+        fh.write("t_ns,body,x,y,z,yaw\n")
+        for row in m:
+            fh.write(f"{int(row['t_us']) * 1000},{row['robot']},{row['x_m']:.6f},{row['y_m']:.6f},0.05,"
+                     f"{row['yaw_rad']:.6f}\n")
+    out = tmp_path / "s.json"
+    r = arena("eval", "--tracks", d / "tracks.csv", "--truth", p, "--time-offset", "2.5", "--json", out)
+    assert r.returncode == 0, r.stdout + r.stderr
+    al = json.loads(out.read_text())["alignment"]
+    assert al["time_offset_s"] == 2.5 and al["frame"]["mode"] == "rigid"      # rigid: the default for a pose CSV
+    assert abs(al["frame"]["rotation_deg"] + 75) < 0.06 and abs(al["frame"]["translation_m"][0] - 1.1) < 1e-3
+    assert json.loads(out.read_text())["scores"]["recall"] > 0.99
+
+
+def test_eval_bag_without_rosbags_is_one_line(sim_run, tmp_path):
+    d, _, _ = sim_run
+    (tmp_path / "bag").mkdir()
+    code = ("import sys; sys.modules['rosbags'] = None; from arena.cli import main; "
+            f"sys.exit(main(['eval', '--tracks', {str(d / 'tracks.csv')!r}, '--truth', {str(tmp_path / 'bag')!r}]))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "pip install 'arena-fleet[ros2]'" in r.stderr, r.stderr
