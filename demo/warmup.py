@@ -23,7 +23,7 @@ from pathlib import Path
 KERNELS = ("simulator.dvs:_dvs_block", "simulator.world:_physics_step", "simulator.evt3:_encode",
            "arena.formats.evt3:_decode", "arena.codec:_encode_planes", "arena.codec:_decode_planes",
            "tracker.dbscan:_cores_kernel", "tracker.density:_update", "tracker.accumulate:_apply",
-           "tracker.detect:_cluster_moments",
+           "tracker.detect:_split_cluster",
            "arena.formats.csvfile:_parse_lines", "arena.formats.csvfile:_format_lines")
 
 
@@ -74,13 +74,17 @@ def compile_sim_edge() -> None:
 
 def compile_tracker() -> None:
     """The tracker's kernels (its grid DBSCAN alone takes ~5 s) and the CSV reader's."""
+    import numpy as np
+
     from simulator.camera import CeilingCamera
     from tracker.calibration import Calibration
+    from tracker.detect import _split_cluster
     from tracker.pipeline import Pipeline
     from tracker.pipeline import warm_up as warm_tracker
 
     cal = Calibration.from_dict(CeilingCamera(640, 480).calibration(), "the simulated camera")
     warm_tracker(lambda: Pipeline(cal, fleet_size=4))
+    _split_cluster(np.zeros(2), np.zeros(2), np.zeros((2, 2)), 1.0)   # robots that meet (no split in warm_tracker)
     compile_csv()
 
 

@@ -22,9 +22,13 @@ _REBASE_S = 20.0
 
 
 @njit(cache=True, nogil=True)
-def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_active):
+def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_active, trans, n_trans):
     """Add (sign=+1) or remove (sign=-1) events. Statistics live in slots 0..n_active-1
-    (contiguous); ``slot[pixel]`` is the pixel's slot or -1, ``active[slot]`` its pixel."""
+    (contiguous); ``slot[pixel]`` is the pixel's slot or -1, ``active[slot]`` its pixel.
+    When ``trans`` is not empty, each pixel turning active is appended to it as
+    ``pixel + 1`` and each turning inactive as ``-(pixel + 1)`` (from ``n_trans`` on).
+    Returns ``(n_active, n_trans)``."""
+    record = trans.shape[0] > 0
     for i in range(x.shape[0]):
         k = np.int64(y[i]) * width + np.int64(x[i])
         ti = (t[i] - t_ref) * 1e-6
@@ -39,6 +43,9 @@ def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_a
                 st[j] = 0.0
                 st2[j] = 0.0
                 n_active += 1
+                if record:
+                    trans[n_trans] = k + 1
+                    n_trans += 1
             count[j] += 1
             if p[i]:
                 on[j] += 1
@@ -61,7 +68,10 @@ def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_a
                 st2[j] = st2[last]
                 slot[k] = -1
                 n_active -= 1
-    return n_active
+                if record:
+                    trans[n_trans] = -(k + 1)
+                    n_trans += 1
+    return n_active, n_trans
 
 
 @njit(cache=True, nogil=True)
@@ -82,6 +92,8 @@ class PixelWindow:
         accumulation_us: t_a, µs.
     """
 
+    _no_trans = np.zeros(0, dtype=np.int64)
+
     def __init__(self, width: int, height: int, accumulation_us: int) -> None:
         if width <= 0 or height <= 0:
             raise ValueError(f"sensor size must be positive, got {width}x{height}")
@@ -96,6 +108,11 @@ class PixelWindow:
         self._slices: deque[tuple[int, np.ndarray]] = deque()
         self.t_ref_us: int | None = None
         self.n_events = 0
+        # pixels that turned active / inactive during one push, for an attached index
+        self._index = None
+        self._trans = np.zeros(0, dtype=np.int64)
+        self._n_trans = 0
+        self._recording = False
 
     def _alloc(self, cap: int) -> None:
         old = getattr(self, "_active", None)
@@ -118,10 +135,40 @@ class PixelWindow:
         need = self._n_active + (ev.size if sign > 0 else 0)
         if need > self._active.size:
             self._alloc(max(need, 2 * self._active.size))
-        self._n_active = _apply(ev["x"], ev["y"], ev["p"], ev["t"], sign, self.t_ref_us, self.width,
-                                self._slot, self._active, self._count, self._on, self._st, self._st2,
-                                self._n_active)
+        trans = self._no_trans
+        if self._recording:
+            if self._n_trans + ev.size > self._trans.size:
+                grown = np.zeros(max(self._n_trans + ev.size, 2 * self._trans.size, 4096), dtype=np.int64)
+                grown[:self._n_trans] = self._trans[:self._n_trans]
+                self._trans = grown
+            trans = self._trans
+        self._n_active, n_trans = _apply(ev["x"], ev["y"], ev["p"], ev["t"], sign, self.t_ref_us, self.width,
+                                         self._slot, self._active, self._count, self._on, self._st,
+                                         self._st2, self._n_active, trans, self._n_trans)
+        if self._recording:
+            self._n_trans = n_trans
         self.n_events += sign * ev.size
+
+    @property
+    def n_active(self) -> int:
+        """Number of active pixels (at least one event in the window)."""
+        return self._n_active
+
+    @property
+    def index(self):
+        """The attached index (see :meth:`attach`), or None."""
+        return self._index
+
+    def attach(self, index) -> None:
+        """Keep ``index`` up to date with the set of active pixels (None detaches).
+
+        ``index.rebuild(pixels)`` is called now with the active pixels (``y * width + x``),
+        then ``index.update(changes)`` after every :meth:`push` with the pixels that turned
+        active (``pixel + 1``) or inactive (``-(pixel + 1)``) in it, in order.
+        """
+        self._index = index
+        if index is not None:
+            index.rebuild(self._active[:self._n_active].copy())
 
     def push(self, events: np.ndarray, t_end_us: int) -> None:
         """Add one slice (events with t < t_end_us) and expire what is older than t_end - t_a."""
@@ -131,27 +178,52 @@ class PixelWindow:
         elif (t_end_us - self.t_ref_us) * 1e-6 > _REBASE_S:
             self._rebase(int(t_end_us) - self.accumulation_us)
         lo = int(t_end_us) - self.accumulation_us
-        # expire whole slices, then the old part of the oldest one
-        while self._slices and self._slices[0][0] <= lo:
-            _, old = self._slices.popleft()
-            self._run(old, -1)
-        if self._slices:
-            t0, first = self._slices[0]
-            if first.size and first["t"][0] < lo:
-                cut = int(np.searchsorted(first["t"], lo, side="left"))
-                self._run(first[:cut], -1)
-                self._slices[0] = (t0, first[cut:])
         keep = events[events["t"] >= lo] if events.size and events["t"][0] < lo else events
-        self._run(keep, +1)
+        self._recording = self._index is not None
+        self._n_trans = 0
+        try:
+            # expire whole slices, then the old part of the oldest one
+            while self._slices and self._slices[0][0] <= lo:
+                _, old = self._slices.popleft()
+                self._run(old, -1)
+            if self._slices:
+                t0, first = self._slices[0]
+                if first.size and first["t"][0] < lo:
+                    cut = int(np.searchsorted(first["t"], lo, side="left"))
+                    self._run(first[:cut], -1)
+                    self._slices[0] = (t0, first[cut:])
+            self._run(keep, +1)
+        except BaseException:
+            self._recording = False
+            if self._index is not None:   # never leave an index out of step with the pixels
+                self._index.rebuild(self._active[:self._n_active].copy())
+            raise
+        self._recording = False
         self._slices.append((int(t_end_us), keep))
+        if self._index is not None:
+            self._index.update(self._trans[:self._n_trans])
 
     def _rebase(self, t_new: int) -> None:
+        # the same events leave and come back: the set of active pixels does not change
+        # (their slots do), so nothing is recorded for an attached index
         slices = list(self._slices)
         for _, ev in slices:
             self._run(ev, -1)
         self.t_ref_us = t_new
         for _, ev in slices:
             self._run(ev, +1)
+
+    @property
+    def slot_map(self) -> np.ndarray:
+        """Pixel (``y * width + x``) -> its slot in :meth:`pixels`' arrays, -1 when inactive
+        (read only: a view of the window's own map)."""
+        view = self._slot.view()
+        view.flags.writeable = False
+        return view
+
+    def slot_stats(self, slots: np.ndarray):
+        """(count, sum_t, sum_t2) of the active pixels in slots ``slots`` (times in s from ``t_ref_us``)."""
+        return self._count[slots], self._st[slots], self._st2[slots]
 
     def events(self) -> np.ndarray:
         """The window's events, concatenated (sorted by t when the slices were)."""

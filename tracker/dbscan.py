@@ -33,7 +33,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["dbscan_sklearn", "dbscan_grid", "core_mask"]
+__all__ = ["dbscan_sklearn", "dbscan_grid", "core_mask", "dbscan_from_cores", "grid_geometry", "disk_half_widths"]
 
 
 def _check(u: np.ndarray, v: np.ndarray, eps: float, min_samples: int) -> tuple[np.ndarray, np.ndarray]:
@@ -76,11 +76,12 @@ def core_mask(u: np.ndarray, v: np.ndarray, eps: float, min_samples: int) -> np.
     return core
 
 
-def _grid(u, v, eps, min_samples):
-    u, v = _check(u, v, eps, min_samples)
-    n = u.size
-    if n == 0:
-        return np.empty(0, dtype=np.int64), np.zeros(0, dtype=bool)
+def grid_geometry(eps: float) -> tuple[int, int]:
+    """The grid of :func:`dbscan_grid` for radius ``eps`` (px): ``(cell, reach)``.
+
+    ``cell`` is the largest cell side (px) such that any two integer pixels of one cell are
+    within eps; cells more than ``reach`` cells apart on an axis hold no pixels within eps.
+    """
     eps = float(eps)
     # Largest cell side c (px) such that two integer pixels of one cell, at most
     # (c-1)*sqrt(2) apart, are always within eps.
@@ -90,7 +91,52 @@ def _grid(u, v, eps, min_samples):
     # Cells up to `reach` away can hold pixels within eps: the closest pixels of
     # two cells k apart on one axis are (k-1)*c+1 px apart.
     reach = int(math.floor((eps - 1.0) / cell)) + 1 if eps >= 1.0 else 0
-    return _grid_kernel(u, v, eps * eps, int(min_samples), cell, reach)
+    return cell, reach
+
+
+def disk_half_widths(eps: float) -> np.ndarray:
+    """The integer eps-disk as row runs: ``half[dy + rad]`` is the largest ``w`` with
+    ``w^2 + dy^2 <= eps^2`` for ``dy`` in ``[-rad, rad]`` (px); the same disk the grid
+    backend counts neighbours in."""
+    eps2 = float(eps) * float(eps)
+    rad = 0
+    while (rad + 1) * (rad + 1) <= eps2:
+        rad += 1
+    half = np.empty(2 * rad + 1, dtype=np.int64)
+    for dy in range(-rad, rad + 1):
+        w = 0
+        while (w + 1) * (w + 1) + dy * dy <= eps2:
+            w += 1
+        half[dy + rad] = w
+    return half
+
+
+def dbscan_from_cores(u: np.ndarray, v: np.ndarray, core: np.ndarray, eps: float) -> np.ndarray:
+    """DBSCAN labels of unique pixels ``(u, v)`` (px) whose core flags are already known.
+
+    Gives exactly :func:`dbscan_grid`'s labels when ``core`` is its core mask: clusters are
+    the eps-connected components of the cores, numbered by their smallest index; a non-core
+    pixel joins the cluster of its nearest core within ``eps`` (ties: the core of smallest
+    index), else it is noise (-1). Pixels far from every core may be left out of the input
+    without changing the others' labels, which is what the incremental detector relies on.
+    """
+    u, v = _check(u, v, eps, 1)
+    core = np.asarray(core, dtype=np.bool_)
+    if core.shape != u.shape:
+        raise ValueError(f"core must have one flag per pixel, got shape {core.shape} for {u.size} pixels")
+    if u.size == 0:
+        return np.empty(0, dtype=np.int64)
+    cell, reach = grid_geometry(eps)
+    return _cores_kernel(u, v, core, float(eps) * float(eps), cell, reach)
+
+
+def _grid(u, v, eps, min_samples):
+    u, v = _check(u, v, eps, min_samples)
+    n = u.size
+    if n == 0:
+        return np.empty(0, dtype=np.int64), np.zeros(0, dtype=bool)
+    cell, reach = grid_geometry(eps)
+    return _grid_kernel(u, v, float(eps) * float(eps), int(min_samples), cell, reach)
 
 
 @njit(cache=True, nogil=True)
@@ -366,3 +412,133 @@ def _grid_kernel(u, v, eps2, min_samples, cell, reach):
         elif attach[a] >= 0:
             labels[order[a]] = root_label[_find(parent, attach[a])]
     return labels, core_out
+
+
+@njit(cache=True, nogil=True)
+def _cores_kernel(u, v, core_in, eps2, cell, reach):
+    """Steps 2-4 of :func:`_grid_kernel` (union of cores, border pixels, labels) for pixels
+    whose core flags are given (input order)."""
+    n = u.shape[0]
+    umin = u[0]
+    umax = u[0]
+    vmin = v[0]
+    vmax = v[0]
+    for i in range(1, n):
+        umin = min(umin, u[i])
+        umax = max(umax, u[i])
+        vmin = min(vmin, v[i])
+        vmax = max(vmax, v[i])
+    gw = (umax - umin) // cell + 1
+    gh = (vmax - vmin) // cell + 1
+    cid = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        cid[i] = ((v[i] - vmin) // cell) * gw + (u[i] - umin) // cell
+    ncell = gw * gh
+    start = np.zeros(ncell + 1, dtype=np.int64)
+    for i in range(n):
+        start[cid[i] + 1] += 1
+    for c in range(ncell):
+        start[c + 1] += start[c]
+    order = np.empty(n, dtype=np.int64)
+    fill = np.empty(ncell, dtype=np.int64)
+    for c in range(ncell):
+        fill[c] = start[c]
+    for i in range(n):
+        order[fill[cid[i]]] = i
+        fill[cid[i]] += 1
+    pu = np.empty(n, dtype=np.int64)
+    pv = np.empty(n, dtype=np.int64)
+    core = np.zeros(n, dtype=np.bool_)
+    for a in range(n):
+        pu[a] = u[order[a]]
+        pv[a] = v[order[a]]
+        core[a] = core_in[order[a]]
+    parent = np.arange(n)
+    first_core = np.full(ncell, -1, dtype=np.int64)
+    for c in range(ncell):
+        for a in range(start[c], start[c + 1]):
+            if core[a]:
+                if first_core[c] < 0:
+                    first_core[c] = a
+                else:
+                    _union(parent, first_core[c], a)
+    for ring in range(1, reach + 1):
+        for c in range(ncell):
+            fa = first_core[c]
+            if fa < 0:
+                continue
+            gx = c % gw
+            gy = c // gw
+            for dy in range(0, ring + 1):
+                yy = gy + dy
+                if yy >= gh:
+                    continue
+                for dx in range(-ring, ring + 1):
+                    if max(abs(dx), dy) != ring or (dy == 0 and dx <= 0):
+                        continue
+                    xx = gx + dx
+                    if xx < 0 or xx >= gw:
+                        continue
+                    c2 = yy * gw + xx
+                    fb = first_core[c2]
+                    if fb < 0 or _find(parent, fa) == _find(parent, fb):
+                        continue
+                    if _cells_touch(pu, pv, core, start[c], start[c + 1], start[c2], start[c2 + 1], eps2):
+                        _union(parent, fa, fb)
+    # border pixels: the nearest core within eps (ties: smallest input index)
+    attach = np.full(n, -1, dtype=np.int64)
+    for c in range(ncell):
+        gx = c % gw
+        gy = c // gw
+        for a in range(start[c], start[c + 1]):
+            if core[a]:
+                continue
+            best = eps2 + 1.0
+            for ring in range(0, reach + 1):
+                if ring > 0 and attach[a] >= 0:
+                    dmin = (ring - 1) * cell + 1
+                    if dmin * dmin > best:
+                        break
+                for dy in range(-ring, ring + 1):
+                    yy = gy + dy
+                    if yy < 0 or yy >= gh:
+                        continue
+                    for dx in range(-ring, ring + 1):
+                        if max(abs(dx), abs(dy)) != ring:
+                            continue
+                        xx = gx + dx
+                        if xx < 0 or xx >= gw:
+                            continue
+                        c2 = yy * gw + xx
+                        if first_core[c2] < 0:
+                            continue
+                        for b in range(start[c2], start[c2 + 1]):
+                            if not core[b]:
+                                continue
+                            du = pu[a] - pu[b]
+                            dv = pv[a] - pv[b]
+                            d2 = du * du + dv * dv
+                            if d2 <= eps2 and (d2 < best or (d2 == best and order[b] < order[attach[a]])):
+                                best = d2
+                                attach[a] = b
+    # labels: clusters numbered by the smallest input index of their cores
+    root_label = np.full(n, -1, dtype=np.int64)
+    labels = np.full(n, -1, dtype=np.int64)
+    # input order = index order: the first core met of a cluster gives its number
+    inv = np.empty(n, dtype=np.int64)
+    for a in range(n):
+        inv[order[a]] = a
+    label = 0
+    for i in range(n):
+        a = inv[i]
+        if core[a]:
+            r = _find(parent, a)
+            if root_label[r] < 0:
+                root_label[r] = label
+                label += 1
+            labels[i] = root_label[r]
+    for i in range(n):
+        a = inv[i]
+        if not core[a] and attach[a] >= 0:
+            labels[i] = root_label[_find(parent, attach[a])]
+    return labels

@@ -25,7 +25,11 @@ Two detectors:
 
 All per-window work is O(active pixels): the statistics come per pixel (count, sum of
 times, sum of squared times), from :class:`tracker.accumulate.PixelWindow` or from the
-window's events.
+window's events. On a :class:`~tracker.accumulate.PixelWindow` (:meth:`Detector.detect_window`)
+the default detector does less: a :class:`tracker.density.NeighbourIndex` attached to the
+window keeps every pixel's neighbour count up to date slice by slice, and only the pixels
+near dense ones are clustered, with exactly the labels of the full-window grid DBSCAN
+(``DetectorConfig.incremental``; off, every slice re-clusters the whole window).
 """
 
 from __future__ import annotations
@@ -37,7 +41,8 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
-from tracker.dbscan import dbscan_grid, dbscan_sklearn
+from tracker.dbscan import dbscan_from_cores, dbscan_grid, dbscan_sklearn
+from tracker.density import NeighbourIndex
 
 __all__ = ["Detection", "Detector", "DetectorConfig", "PaperDetector", "PaperConfig", "BACKENDS"]
 
@@ -211,6 +216,9 @@ class DetectorConfig:
             90 degrees (4-fold), otherwise modulo 180 degrees.
         min_anisotropy: least normalised harmonic amplitude for a shape orientation.
         backend: DBSCAN backend, ``grid`` (exact, fast) or ``sklearn``.
+        incremental: with the ``grid`` backend, on a pixel window, keep the neighbour counts
+            between slices and cluster only near dense pixels (same labels as re-clustering
+            the whole window, which ``False`` does every slice).
     """
 
     chassis_m: float = 0.10
@@ -222,6 +230,7 @@ class DetectorConfig:
     chassis_aspect: float = 1.0
     min_anisotropy: float = 0.08
     backend: str = "grid"
+    incremental: bool = True
 
     def validate(self) -> None:
         for name in ("chassis_m", "eps_chassis", "min_fill", "noise_false_rate", "min_area_chassis",
@@ -231,6 +240,8 @@ class DetectorConfig:
                 raise ValueError(f"detector {name} must be a positive number, got {val!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown DBSCAN backend {self.backend!r}; choose from {sorted(BACKENDS)}")
+        if not isinstance(self.incremental, bool):
+            raise ValueError(f"detector incremental must be true or false, got {self.incremental!r}")
 
 
 def _poisson_quantile(lam: float, tail: float) -> int:
@@ -346,6 +357,9 @@ class Detector:
         self.eps_px = max(1.5, self.config.eps_chassis * self.chassis_px)
         self._disk = float(_disk_size(self.eps_px))
         self._pix = _Pixels()
+        # side of the cells the noise level is measured in, px; least minPts
+        self._noise_cell = max(4, int(round(self.chassis_px)))
+        self._floor = max(3, int(math.ceil(self.config.min_fill * self._disk)))
         #: last noise density used, active pixels per px^2 (outside robots)
         self.noise_density_: float = 0.0
         #: last minPts used
@@ -354,17 +368,20 @@ class Detector:
     # -- density threshold ------------------------------------------------
     def _min_samples(self, pu: np.ndarray, pv: np.ndarray) -> int:
         """minPts from the measured noise: trimmed mean of active pixels per cell."""
-        cell = max(4, int(round(self.chassis_px)))
+        cell = self._noise_cell
         gw = self.width // cell + 1
         gh = self.height // cell + 1
-        counts = np.bincount((pv // cell) * gw + pu // cell, minlength=gw * gh)
+        return self._min_samples_from_counts(np.bincount((pv // cell) * gw + pu // cell, minlength=gw * gh))
+
+    def _min_samples_from_counts(self, counts: np.ndarray) -> int:
+        """minPts from the active pixels per noise cell (``_noise_cell`` px, row-major)."""
+        cell = self._noise_cell
         # cells holding robots are the dense tail: drop the top 10 %
         keep = np.partition(counts, max(0, int(0.9 * counts.size) - 1))[: max(1, int(0.9 * counts.size))]
         rho = float(keep.mean()) / (cell * cell)
         self.noise_density_ = rho
-        floor = int(math.ceil(self.config.min_fill * self._disk))
         noise = _poisson_quantile(rho * self._disk, self.config.noise_false_rate)
-        return max(3, floor, noise)
+        return max(self._floor, noise)
 
     def detect(self, events: np.ndarray, t_end_us: int, hints: np.ndarray | None = None) -> list[Detection]:
         """Detections in the window ``events`` (sorted by t) ending at ``t_end_us`` (µs).
@@ -380,20 +397,53 @@ class Detector:
         return self.detect_pixels(pu, pv, cnt, st, st2, t_ref, t_end_us, hints)
 
     def detect_window(self, window, t_end_us: int, hints: np.ndarray | None = None) -> list[Detection]:
-        """Detections from a :class:`tracker.accumulate.PixelWindow` ending at ``t_end_us`` (µs)."""
+        """Detections from a :class:`tracker.accumulate.PixelWindow` ending at ``t_end_us`` (µs).
+
+        With ``config.incremental`` (and the grid backend) the first call attaches a
+        :class:`tracker.density.NeighbourIndex` to the window, which the window then keeps
+        up to date at every push; the result equals that of re-clustering the whole window.
+        """
+        if (self.config.incremental and self.config.backend == "grid" and hasattr(window, "attach")
+                and (window.width, window.height) == (self.width, self.height)):
+            return self._detect_incremental(window, t_end_us, hints)
         pu, pv, cnt, _, st, st2 = window.pixels()
         if pu.size == 0:
             return []
         return self.detect_pixels(pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints)
 
+    def _detect_incremental(self, window, t_end_us: int, hints: np.ndarray | None) -> list[Detection]:
+        idx = window.index
+        if not (isinstance(idx, NeighbourIndex)
+                and idx.matches(self.width, self.height, self.eps_px, self._noise_cell)):
+            idx = NeighbourIndex(self.width, self.height, self.eps_px, self._noise_cell)
+            window.attach(idx)
+        if window.n_active == 0:
+            return []
+        ms = self._min_samples_from_counts(idx.noise_counts)
+        self.min_samples_ = ms
+        pix, slots, core = idx.select(window.slot_map, window.n_active, ms)
+        if not core.any():
+            return []
+        pu = pix % self.width
+        pv = pix // self.width
+        labels = dbscan_from_cores(pu, pv, core, self.eps_px)
+        cnt, st, st2 = window.slot_stats(slots)
+        return self._detections(labels, pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints)
+
     def detect_pixels(self, pu, pv, cnt, st, st2, t_ref_us: int, t_end_us: int,
                       hints: np.ndarray | None = None) -> list[Detection]:
         """Detections from per-pixel statistics: pixel (u, v) px, event count, and sums of
         event times and squared times (s from ``t_ref_us``)."""
-        cfg = self.config
         ms = self._min_samples(pu, pv)
         self.min_samples_ = ms
-        labels = BACKENDS[cfg.backend](pu, pv, self.eps_px, ms)
+        labels = BACKENDS[self.config.backend](pu, pv, self.eps_px, ms)
+        return self._detections(labels, pu, pv, cnt, st, st2, t_ref_us, t_end_us, hints)
+
+    def _detections(self, labels, pu, pv, cnt, st, st2, t_ref_us: int, t_end_us: int,
+                    hints: np.ndarray | None) -> list[Detection]:
+        """Detections from DBSCAN labels of pixels (any subset holding every labelled pixel,
+        in the window's order: the sums, hence the results, are the same)."""
+        cfg = self.config
         k = int(labels.max()) + 1 if labels.size else 0
         if k == 0:
             return []
@@ -462,39 +512,99 @@ class Detector:
         """Give each cluster holding >= 2 hints (px) one part per hint (nearest-seed
         assignment refined by two centroid updates). Returns (labels, k)."""
         near = 0.5 * self.chassis_px
+        hu, hv = hints[:, :1], hints[:, 1:2]
+        # hint h near cluster c's box, in the order of h then c (which numbers the new parts)
+        box = (s[:, 9] - near <= hu) & (hu <= s[:, 10] + near) & (s[:, 11] - near <= hv) & (hv <= s[:, 12] + near)
         inside: dict[int, list[int]] = {}
-        for h, (hu, hv) in enumerate(hints):
-            box = (s[:, 9] - near <= hu) & (hu <= s[:, 10] + near) & (s[:, 11] - near <= hv) & (hv <= s[:, 12] + near)
-            for c in np.flatnonzero(box):
-                inside.setdefault(int(c), []).append(h)
+        for h, c in zip(*(a.tolist() for a in np.nonzero(box))):
+            inside.setdefault(c, []).append(h)
+        if not any(len(hs) >= 2 for hs in inside.values()):
+            return labels, k
+        # each cluster's pixels in index order, without a pass over all labels per cluster
+        by_label = np.argsort(labels, kind="stable")
+        first = np.searchsorted(labels[by_label], np.arange(k + 1))
         out = None
         for c, hs in inside.items():
             if len(hs) < 2:
                 continue
-            sel = np.flatnonzero(labels == c)
-            pts = np.column_stack([pu[sel], pv[sel]]).astype(float)
-            seeds = hints[hs].copy()
-            d2 = ((pts[:, None, :] - seeds[None, :, :]) ** 2).sum(-1)
-            # a hint counts when the cluster has pixels near it
-            real = d2.min(0) <= near * near
-            if real.sum() < 2:
+            sel = by_label[first[c]:first[c + 1]]
+            part, n_parts = _split_cluster(pu[sel].astype(float), pv[sel].astype(float), hints[hs], near)
+            if n_parts < 2:
                 continue
-            seeds = seeds[real]
-            # two robots cannot overlap: seeds closer than half a chassis are one robot
-            dd = np.sqrt(((seeds[:, None, :] - seeds[None, :, :]) ** 2).sum(-1))
-            if np.all(dd[np.triu_indices(len(seeds), 1)] < near):
-                continue
-            for _ in range(3):
-                part = np.argmin(((pts[:, None, :] - seeds[None, :, :]) ** 2).sum(-1), axis=1)
-                for q in range(len(seeds)):
-                    if np.any(part == q):
-                        seeds[q] = pts[part == q].mean(0)
             if out is None:
                 out = labels.copy()
-            for q in range(1, len(seeds)):
+            for q in range(1, n_parts):
                 out[sel[part == q]] = k
                 k += 1
         return (labels if out is None else out), k
+
+
+@njit(cache=True, nogil=True)
+def _split_cluster(x, y, hints, near):
+    """One cluster's pixels (x, y px) split between the hints (k, 2) px: the hints with a pixel
+    within ``near`` px are the seeds; unless there are fewer than two, or all lie within
+    ``near`` of each other (one robot), each pixel goes to its nearest seed, seeds moved to
+    their parts' centroids three times. Returns the part of each pixel and the number of
+    parts (seeds), 0 when the cluster is not split. (Sums of integer pixel coordinates are exact, so this equals
+    the same steps in numpy, bit for bit.)"""
+    n = x.shape[0]
+    m = hints.shape[0]
+    near2 = near * near
+    seeds = np.empty((m, 2))
+    ns = 0
+    for q in range(m):
+        best = np.inf
+        for i in range(n):
+            dx = x[i] - hints[q, 0]
+            dy = y[i] - hints[q, 1]
+            d = dx * dx + dy * dy
+            if d < best:
+                best = d
+        if best <= near2:
+            seeds[ns, 0] = hints[q, 0]
+            seeds[ns, 1] = hints[q, 1]
+            ns += 1
+    empty = np.empty(0, dtype=np.int64)
+    if ns < 2:
+        return empty, 0
+    # two robots cannot overlap: seeds closer than half a chassis are one robot
+    apart = False
+    for a in range(ns):
+        for b in range(a + 1, ns):
+            dx = seeds[a, 0] - seeds[b, 0]
+            dy = seeds[a, 1] - seeds[b, 1]
+            if not math.sqrt(dx * dx + dy * dy) < near:
+                apart = True
+    if not apart:
+        return empty, 0
+    part = np.zeros(n, dtype=np.int64)
+    sx = np.zeros(ns)
+    sy = np.zeros(ns)
+    cnt = np.zeros(ns, dtype=np.int64)
+    for _ in range(3):
+        for q in range(ns):
+            sx[q] = 0.0
+            sy[q] = 0.0
+            cnt[q] = 0
+        for i in range(n):
+            best = np.inf
+            bq = 0
+            for q in range(ns):
+                dx = x[i] - seeds[q, 0]
+                dy = y[i] - seeds[q, 1]
+                d = dx * dx + dy * dy
+                if d < best:
+                    best = d
+                    bq = q
+            part[i] = bq
+            sx[bq] += x[i]
+            sy[bq] += y[i]
+            cnt[bq] += 1
+        for q in range(ns):
+            if cnt[q] > 0:
+                seeds[q, 0] = sx[q] / cnt[q]
+                seeds[q, 1] = sy[q] / cnt[q]
+    return part, ns
 
 
 @njit(cache=True, nogil=True)

@@ -46,6 +46,18 @@ def test_grid_equals_sklearn_on_event_windows(seed, eps, min_samples):
     assert_same_as_sklearn(pts, eps, min_samples)
 
 
+@pytest.mark.parametrize("noise_hz", [0.5, 2.0])
+@pytest.mark.parametrize("eps,min_samples", [(5.88, 21), (6.25, 40)])
+def test_grid_equals_sklearn_on_realistic_background(noise_hz, eps, min_samples):
+    """Sensor background of real cameras (0.5-2 Hz per pixel over a 100 ms window)."""
+    rng = np.random.default_rng(int(noise_hz * 10) + min_samples)
+    poses = [line_pose(100 + 90 * k, 120 + 60 * k, 100.0 * (-1) ** k, 60.0) for k in range(4)]
+    ev = window(rng, poses, 0, 100_000, noise_per_px_s=noise_hz)
+    pts = np.unique(np.column_stack([ev["x"], ev["y"]]).astype(np.int64), axis=0)
+    assert len(pts) > 0.04 * noise_hz * 640 * 480
+    assert_same_as_sklearn(pts, eps, min_samples)
+
+
 def test_simulated_window_matches_sklearn():
     from simulator.scenarios import Scenario, generate
 
