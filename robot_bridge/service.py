@@ -313,7 +313,7 @@ class RobotHandle:
                                f"{mission.start[1]:.2f}) spans x {x0:.2f}..{x1:.2f} y {y0:.2f}..{y1:.2f} m and "
                                f"leaves the arena (0..{sx}, 0..{sy} m, margin {m} m)")
 
-    def _cancel(self, reason: str, repeat: int = 1) -> tuple[str | None, bool]:
+    def _cancel(self, reason: str, repeat: int = 1, event: str | None = None) -> tuple[str | None, bool]:
         """Bump the stop generation, send STOP (latching "no motors" in the link) and have the
         mission ended by the worker (after the jobs queued before) or by the next control step,
         whichever comes first. Never waits for :attr:`lock`. Returns (mission id, STOP sent)."""
@@ -325,15 +325,18 @@ class RobotHandle:
 
         def end():
             with self.lock:
+                if event is not None and self.mission_log is not None:   # why the telemetry stops here
+                    self.mission_log.event(time.time_ns(), event, self.runner.phase if self.runner else "")
                 self._end_mission(reason)
                 self.holding = False
             self._stop_motors(repeat)
         self.submit(end)
         return had, sent
 
-    def stop(self, reason: str = "stopped by command") -> dict:
-        """Stop the motors at once; the mission (if any) ends right after (see :meth:`_cancel`)."""
-        had, _ = self._cancel(reason)
+    def stop(self, reason: str = "stopped by command", event: str | None = None) -> dict:
+        """Stop the motors at once; the mission (if any) ends right after (see :meth:`_cancel`),
+        with ``event`` (e.g. ``router_lost``) as a row of its log when given."""
+        had, _ = self._cancel(reason, event=event)
         return {"stopped_mission": had}
 
     def hold(self) -> bool:
@@ -662,7 +665,7 @@ class Bridge:
             h.hold()
         running = [h.name for h in handles if h.runner is not None]
         for h in handles:
-            h.stop("aborted: Zenoh router lost")
+            h.stop("aborted: Zenoh router lost", event="router_lost")
         self._error(f"Zenoh router lost: stopped {', '.join(self.handles)}"
                     + (f" (missions of {', '.join(running)} aborted)" if running else "")
                     + "; check the router (`arena router`, --connect) and restart the missions")

@@ -115,6 +115,11 @@ def test_router_loss_stops_every_robot_within_300ms_with_the_demos_flags(router,
         out = bridge.wait(timeout=15)
     assert bridge.proc.returncode == 0, out
     assert "Zenoh router lost: stopped r1, r2, r3 (missions of r1, r2, r3 aborted)" in out, out
+    # each mission's log says why its telemetry stops there
+    import csv
+    for name in robots:
+        rows = list(csv.DictReader(open(sorted(tmp_path.glob(f"{name}_*.csv"))[-1], newline="")))
+        assert [r["event"] for r in rows].count("router_lost") == 1, name
 
 
 @pytest.mark.parametrize("target", ["process", "other thread"])
