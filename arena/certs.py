@@ -13,7 +13,13 @@ package is needed. Output folder ``DIR`` (created; existing files are kept unles
 
 The certificate's common name is the host name: the router's access-control policy
 (``deploy/zenoh/router.json5``) matches it with ``cert_common_names`` and the role with
-``usernames``. Private keys and password files are written with mode 0600.
+``usernames``. The user ``router`` is the routers' own: its password (``router.env``) goes to
+router hosts only, and a router link is trusted only with a router certificate AND that password.
+Hosts named by ``--server-only`` (a mesh's central router) get a certificate that only serves
+TLS (extendedKeyUsage serverAuth), so nobody can present it as a client.
+
+Private keys, ``users.txt`` and ``*.env`` are created with mode 0600 (never wider, whatever the
+umask) in a folder created with mode 0700.
 """
 
 from __future__ import annotations
@@ -96,37 +102,86 @@ def _openssl(*args: str, cwd: Path | None = None) -> None:
         raise CertError(f"openssl {args[0]} failed: {proc.stderr.strip() or proc.stdout.strip()}")
 
 
-def _private(path: Path) -> None:
-    os.chmod(path, 0o600)
+def _write_private(path: Path, data: bytes | str) -> None:
+    """Write ``path`` readable by its owner only (mode 0600) from the first byte on.
+
+    The data goes to a temporary file made with mode 0600 (``mkstemp``; a umask only removes
+    bits) in the same folder, which then replaces ``path`` atomically: the secret is never in a
+    file of a wider mode, and an existing file of a wider mode is replaced, not reused.
+    """
+    raw = data.encode() if isinstance(data, str) else data
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o600)
+        with os.fdopen(fd, "wb") as f:
+            f.write(raw)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def _openssl_key(path: Path) -> None:
+    """A new EC P-256 private key in ``path`` (PEM, mode 0600): openssl prints it, we write it."""
+    exe = shutil.which("openssl")
+    if exe is None:
+        raise CertError("the openssl command is not installed (apt-get install openssl)")
+    proc = subprocess.run([exe, "genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256"],
+                          capture_output=True)
+    if proc.returncode != 0 or b"PRIVATE KEY" not in proc.stdout:
+        raise CertError(f"openssl genpkey failed: {proc.stderr.decode(errors='replace').strip()}")
+    _write_private(path, proc.stdout)
+
+
+def _private_folder(out: Path) -> None:
+    """Create ``out`` with mode 0700 (parents as needed); an existing one is left as it is, but a
+    warning names it if others may list it."""
+    if out.exists():
+        if not out.is_dir():
+            raise CertError(f"{out} exists and is not a folder")
+        mode = out.stat().st_mode & 0o777
+        if mode & 0o077:
+            print(f"arena certs: warning: {out} has mode {mode:o}: other users may list it "
+                  f"(chmod 700 {out})", file=sys.stderr)
+        return
+    out.parent.mkdir(parents=True, exist_ok=True)
+    os.mkdir(out, 0o700)
+    os.chmod(out, 0o700)  # mkdir's mode is masked by the umask; 0700 is the most it may be
 
 
 def make_ca(out: Path, name: str = "arena lab CA", days: int = 3650) -> tuple[Path, Path]:
     """Create ``out/ca.pem`` and ``out/ca.key`` (self-signed CA, EC P-256, ``days`` valid)."""
     key, cert = out / "ca.key", out / "ca.pem"
-    _openssl("genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256", "-out", str(key))
-    _private(key)
+    _openssl_key(key)
     _openssl("req", "-x509", "-new", "-key", str(key), "-out", str(cert), "-days", str(days), "-sha256",
              "-subj", f"/CN={name}",
              "-addext", "basicConstraints=critical,CA:TRUE",
              "-addext", "keyUsage=critical,keyCertSign,cRLSign",
              "-addext", "subjectKeyIdentifier=hash")
+    os.chmod(cert, 0o644)  # public, but nobody else may replace it whatever the umask
     return cert, key
 
 
-def make_host_cert(out: Path, host: HostSpec, days: int = 825) -> tuple[Path, Path]:
+def make_host_cert(out: Path, host: HostSpec, days: int = 825, server_only: bool = False) -> tuple[Path, Path]:
     """Create ``out/<host>.pem`` and ``out/<host>.key`` signed by ``out/ca.pem``.
 
     The certificate serves both ends of a TLS link (extendedKeyUsage serverAuth and clientAuth):
-    a router listens with it and a client presents it for mTLS.
+    a router listens with it and a client presents it for mTLS. With ``server_only`` it has
+    serverAuth alone: a router that only listens (the lab router) cannot be impersonated by a
+    client holding its certificate, since TLS refuses it as a client certificate.
     """
     key, cert = out / f"{host.name}.key", out / f"{host.name}.pem"
-    _openssl("genpkey", "-algorithm", "EC", "-pkeyopt", "ec_paramgen_curve:P-256", "-out", str(key))
-    _private(key)
+    _openssl_key(key)
     with tempfile.TemporaryDirectory(prefix="arena-certs-") as tmp:
         csr, ext = Path(tmp) / "host.csr", Path(tmp) / "host.ext"
         ext.write_text("basicConstraints=critical,CA:FALSE\n"
                        "keyUsage=critical,digitalSignature\n"
-                       "extendedKeyUsage=serverAuth,clientAuth\n"
+                       f"extendedKeyUsage={'serverAuth' if server_only else 'serverAuth,clientAuth'}\n"
                        f"subjectAltName={host.san()}\n"
                        "subjectKeyIdentifier=hash\n"
                        "authorityKeyIdentifier=keyid\n")
@@ -134,6 +189,7 @@ def make_host_cert(out: Path, host: HostSpec, days: int = 825) -> tuple[Path, Pa
         _openssl("x509", "-req", "-in", str(csr), "-CA", str(out / "ca.pem"), "-CAkey", str(out / "ca.key"),
                  "-set_serial", str(secrets.randbits(63)), "-days", str(days), "-sha256",
                  "-extfile", str(ext), "-out", str(cert))
+    os.chmod(cert, 0o644)
     return cert, key
 
 
@@ -154,25 +210,23 @@ def make_users(out: Path, users: list[str], force: bool = False) -> dict[str, st
         if not _USER_RE.match(user):
             raise CertError(f"--users: {user!r} is not a user name (letters, digits, '_', '-'; at most 32)")
         passwords.setdefault(user, secrets.token_urlsafe(18))
-    dictionary.write_text("".join(f"{u}:{p}\n" for u, p in passwords.items()))
-    _private(dictionary)
+    _write_private(dictionary, "".join(f"{u}:{p}\n" for u, p in passwords.items()))
     for user, pwd in passwords.items():
-        env = out / f"{user}.env"
-        env.write_text(f"ARENA_ZENOH_USER={user}\nARENA_ZENOH_PASSWORD={pwd}\n")
-        _private(env)
+        _write_private(out / f"{user}.env", f"ARENA_ZENOH_USER={user}\nARENA_ZENOH_PASSWORD={pwd}\n")
     return passwords
 
 
 def make_lab_pki(out: Path, hosts: list[HostSpec], users: list[str], days: int = 825,
-                 force: bool = False) -> list[Path]:
-    """Make (or complete) a lab's PKI in ``out``; returns the files written."""
-    out.mkdir(parents=True, exist_ok=True)
+                 force: bool = False, server_only: tuple[str, ...] | list[str] = ()) -> list[Path]:
+    """Make (or complete) a lab's PKI in ``out`` (created with mode 0700); returns the files
+    written. Hosts named in ``server_only`` get a serverAuth-only certificate."""
+    _private_folder(out)
     written: list[Path] = []
     if force or not (out / "ca.pem").exists() or not (out / "ca.key").exists():
         written += make_ca(out)
     for host in hosts:
         if force or not (out / f"{host.name}.pem").exists():
-            written += make_host_cert(out, host, days)
+            written += make_host_cert(out, host, days, server_only=host.name in server_only)
     if users:
         make_users(out, users, force)
         written += [out / "users.txt", *(out / f"{u}.env" for u in users)]
@@ -191,6 +245,7 @@ def register(sub) -> None:
                "  arena certs pki --hosts router=198.18.0.1,camera=198.18.0.2,tracker=198.18.0.3,robot=198.18.0.4\n"
                "  arena certs pki --hosts laptop                 # add a host later (the CA is reused)\n"
                "  arena certs pki --hosts router=10.0.0.1+router.lab --users operator,viewer\n"
+               "  arena certs pki --hosts router=198.18.0.1 --server-only router   # a mesh's central router\n"
                "  openssl x509 -in pki/camera.pem -noout -text   # inspect one\n"
                "Then see docs/deployment.md (which files go to which host).")
     p.add_argument("dir", metavar="DIR", help="output folder (created; existing CA and certificates are reused)")
@@ -199,6 +254,9 @@ def register(sub) -> None:
     p.add_argument("--users", default=",".join(DEFAULT_USERS), metavar="USER,...",
                    help=f"roles given a password (default {','.join(DEFAULT_USERS)}); empty for none")
     p.add_argument("--days", type=int, default=825, help="host certificate validity in days (default 825)")
+    p.add_argument("--server-only", default="", metavar="NAME,...",
+                   help="hosts whose certificate only serves TLS (cannot be presented as a client): the "
+                        "central router of a mesh, which other routers connect to and which connects to none")
     p.add_argument("--force", action="store_true", help="replace an existing CA, certificates and passwords")
     p.set_defaults(func=run)
 
@@ -211,7 +269,8 @@ def run(args: argparse.Namespace) -> int:
         hosts = parse_hosts(args.hosts)
         users = [u.strip() for u in args.users.split(",") if u.strip()]
         out = Path(args.dir)
-        written = make_lab_pki(out, hosts, users, args.days, args.force)
+        server_only = [n.strip() for n in args.server_only.split(",") if n.strip()]
+        written = make_lab_pki(out, hosts, users, args.days, args.force, server_only)
     except (CertError, OSError) as exc:
         print(f"arena certs: {exc}", file=sys.stderr)
         return 2

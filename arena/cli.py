@@ -201,6 +201,10 @@ def _register_watch(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object per line")
     p.add_argument("--count", type=int, default=None, help="stop after this many messages")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--notice-after", type=float, default=5.0, metavar="S",
+                   help="with TLS or user/password (a lab router with an access-control list, which drops "
+                        "a subscription it does not allow without telling the client), say so on stderr "
+                        "if nothing arrived within S seconds (default 5; 0: never)")
     add_zenoh_arguments(p)
     p.set_defaults(func=_run_watch)
 
@@ -232,10 +236,47 @@ def _line(key: str, msg: Message) -> str:
     return f"{key} {msg.KIND}: " + " ".join(parts)
 
 
+def _secured(settings) -> bool:
+    """Whether ``settings`` (resolved Zenoh settings) log in with a user or over TLS/QUIC: then a
+    lab router's access-control list may silently drop what is not allowed."""
+    conf = settings.to_zenoh_config()
+
+    def get(path: str):
+        try:
+            return json.loads(conf.get_json(path))
+        except Exception:  # an unset path
+            return None
+
+    connect = get("connect/endpoints") or []
+    if isinstance(connect, dict):  # per-mode values
+        connect = [e for v in connect.values() for e in (v or [])]
+    return bool(settings.user or get("transport/auth/usrpwd/user")
+                or any(str(e).startswith(("tls/", "quic/")) for e in connect))
+
+
+def watch_notice(keyexpr: str, seconds: float) -> str:
+    """The line ``arena watch`` prints when nothing arrived under an access-control list."""
+    return (f"arena watch: nothing received on {keyexpr} in {seconds:g} s; under an access-control list, "
+            "subscribe to a prefix your user may read, e.g. arena/robots/*")
+
+
 def _run_watch(args) -> int:
+    from arena.config import ConfigError
     from arena.messages import MessageError, decode
     from arena.service import stop_on_signals, wait_until_stopped
+    from arena.session import load_lab_from_args, resolve_settings
 
+    if args.notice_after < 0:
+        print("arena watch: --notice-after must be >= 0", file=sys.stderr)
+        return 2
+    try:
+        settings = resolve_settings(args, load_lab_from_args(args))
+    except ConfigError as exc:
+        print(f"arena watch: {exc}", file=sys.stderr)
+        return 2
+    except SessionError as exc:
+        print(f"arena watch: {exc}", file=sys.stderr)
+        return exc.exit_code
     stop = stop_on_signals()
     n = 0
     lock = threading.Lock()
@@ -258,9 +299,20 @@ def _run_watch(args) -> int:
             if args.count is not None and n >= args.count:
                 stop.set()
 
+    def notice() -> None:
+        # Zenoh gives a client no sign that a router denied its subscription: say so when silent
+        with lock:
+            if n == 0 and not stop.is_set():
+                print(watch_notice(args.keyexpr, args.notice_after), file=sys.stderr, flush=True)
+
+    timer = None
     try:
-        with open_session(args) as session:
+        with open_session(settings) as session:
             session.declare_subscriber(args.keyexpr, on_sample)
+            if args.notice_after > 0 and _secured(settings):
+                timer = threading.Timer(args.notice_after, notice)
+                timer.daemon = True
+                timer.start()
             wait_until_stopped(stop, args.duration)
     except KeyboardInterrupt:
         pass
@@ -270,6 +322,9 @@ def _run_watch(args) -> int:
     except Exception as exc:  # an invalid key expression is reported by zenoh as ZError
         print(f"arena watch: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if timer is not None:
+            timer.cancel()
     return 0
 
 

@@ -34,6 +34,7 @@ def register(sub) -> None:
                "  arena view --calibration runs/demo-x/cam0.calib.json\n"
                "  arena view --port 0                         # any free port (printed)\n"
                "  arena view --host 0.0.0.0                   # reachable from other hosts (no auth!)\n"
+               "  arena view --host 0.0.0.0 --allow-host viewer.lab   # also answer to that DNS name\n"
                "Options not given as flags come from the lab config's [services.viewer] table (host, port,\n"
                "accumulate_ms, rate), else the defaults. Malformed keys and messages are counted (status\n"
                "gauges bad_keys, bad) and ignored.")
@@ -48,6 +49,13 @@ def register(sub) -> None:
                    help="event image shows this much sensor time (default 100 ms)")
     p.add_argument("--rate", type=float, default=None, help="updates per second sent to the page (default 10)")
     p.add_argument("--name", default=None, help="service name in arena status (default view-<pid>)")
+    p.add_argument("--allow-host", metavar="NAME", action="append", default=[],
+                   help="also answer requests whose Host header is NAME (a DNS name of this host or a proxy's; "
+                        "repeatable). Others than the address served on, localhost and 127.0.0.1 get 421")
+    p.add_argument("--max-connections", type=int, default=64,
+                   help="connections served at once, pages and event streams (default 64; more get 503)")
+    p.add_argument("--idle-timeout", type=float, default=30.0, metavar="S",
+                   help="close a connection that sends or reads nothing for S seconds (default 30)")
     add_zenoh_arguments(p)
     p.set_defaults(func=run)
 
@@ -106,10 +114,15 @@ def run(args) -> int:
     if args.accumulate_ms <= 0 or args.rate <= 0:
         print("arena view: --accumulate-ms and --rate must be > 0", file=sys.stderr)
         return 2
+    if args.max_connections < 1 or not args.idle_timeout > 0:
+        print("arena view: --max-connections must be >= 1 and --idle-timeout > 0", file=sys.stderr)
+        return 2
     state = ViewerState(camera=camera, accumulate_us=int(args.accumulate_ms * 1000), H_arena_to_px=H,
                         arena_size_m=arena_size, robot_size_m=robot_size)
     try:
-        server = ViewerServer(state, args.host, args.port, period_s=1.0 / args.rate)
+        server = ViewerServer(state, args.host, args.port, period_s=1.0 / args.rate,
+                              allow_hosts=[h for item in args.allow_host for h in item.split(",")],
+                              max_connections=args.max_connections, idle_timeout_s=args.idle_timeout)
     except OSError as exc:
         print(f"arena view: cannot serve on {args.host}:{args.port}: {exc.strerror or exc}"
               " (is another viewer running? try --port 0)", file=sys.stderr)
@@ -120,7 +133,9 @@ def run(args) -> int:
         with open_session(args, lab=lab, wait_s=None) as session, Service(session, "viewer", name) as svc:
             subs = subscribe(session, state, camera)
             svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count()),
-                                   s.gauge("bad", state.counts["bad"]), s.gauge("bad_keys", state.counts["bad_keys"])))
+                                   s.gauge("bad", state.counts["bad"]), s.gauge("bad_keys", state.counts["bad_keys"]),
+                                   s.gauge("refused_host", server.refused["host"]),
+                                   s.gauge("refused_busy", server.refused["busy"])))
             thread.start()
             print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
             try:

@@ -234,3 +234,55 @@ def test_services_without_kernels_start_without_numba_or_scipy():
             "print(sorted(m for m in ('numba', 'scipy.spatial') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+# ---- arena watch under an access-control list ------------------------------------------------
+NOTICE = "under an access-control list, subscribe to a prefix your user may read, e.g. arena/robots/*"
+
+
+@pytest.fixture
+def acl_router(tmp_path):
+    """A real `arena router` on loopback with deploy/zenoh/router.json5 (TLS, user/password and
+    the access-control list) and the lab PKI of `arena certs`; yields (endpoint, client env)."""
+    from tests.conftest import REPO
+
+    pki = tmp_path / "pki"
+    subprocess.run(arena_cmd("certs", str(pki), "--hosts", "router=127.0.0.1,console=127.0.0.1", "--users", "viewer"),
+                   check=True, capture_output=True, timeout=60)
+    deploy = REPO / "deploy" / "zenoh"
+    (tmp_path / "router.json5").write_text((deploy / "router.json5").read_text().replace("/etc/arena/pki/", f"{pki}/"))
+    client = (deploy / "client.json5").read_text().replace("/etc/arena/pki/host.", f"{pki}/console.")
+    (tmp_path / "client.json5").write_text(client.replace("/etc/arena/pki/", f"{pki}/"))
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen(arena_cmd("router", "--zenoh-config", str(tmp_path / "router.json5"), "-l", endpoint),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        wait_for_line(proc, "listening on", timeout=30)
+        password = (pki / "viewer.env").read_text().split("ARENA_ZENOH_PASSWORD=")[1].strip()
+        env = {**os.environ, "ARENA_ZENOH_CONFIG": str(tmp_path / "client.json5"), "ARENA_ZENOH_MODE": "client",
+               "ARENA_ZENOH_CONNECT": endpoint, "ARENA_ZENOH_USER": "viewer", "ARENA_ZENOH_PASSWORD": password}
+        yield endpoint, env
+    finally:
+        proc.kill()
+        proc.wait(timeout=5)
+
+
+def test_watch_says_when_an_access_control_list_may_hide_everything(acl_router):
+    _, env = acl_router
+    denied = subprocess.run(arena_cmd("watch", "arena/**", "--notice-after", "1", "--duration", "4"),
+                            capture_output=True, text=True, timeout=60, env=env)
+    assert denied.returncode == 0, denied.stderr
+    assert denied.stdout == "", "the policy lets a viewer subscribe to arena/** (the notice would be wrong)"
+    assert f"arena watch: nothing received on arena/** in 1 s; {NOTICE}" in denied.stderr.splitlines(), denied.stderr
+    # control: a prefix the viewer may read (the router's own status, once a second) -> no notice
+    allowed = subprocess.run(arena_cmd("watch", "arena/status/**", "--count", "1", "--duration", "15",
+                                       "--notice-after", "1"), capture_output=True, text=True, timeout=60, env=env)
+    assert allowed.returncode == 0 and allowed.stdout.startswith("arena/status/router/"), allowed.stdout + allowed.stderr
+    assert NOTICE not in allowed.stderr
+
+
+def test_watch_without_credentials_or_tls_prints_no_notice(router):
+    out = run("watch", "arena/robots/*", "--notice-after", "0.5", "--duration", "2", *router_args(router))
+    assert out.returncode == 0 and out.stdout == "" and NOTICE not in out.stderr, out.stderr
+    assert run("watch", "--notice-after", "-1", "--duration", "0").returncode == 2

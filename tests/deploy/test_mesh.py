@@ -18,12 +18,17 @@ pytestmark = pytest.mark.netns
 
 def _mesh_config(text: str, password: str, cert: str, connect: list[str]) -> str:
     """router.json5 as docs/deployment.md says to adapt it for a mesh: every router's name in the
-    `routers` subject; a connecting router authenticates with the `router` user's password."""
-    text = text.replace('{ id: "routers", cert_common_names: ["router"] }', '{ id: "routers", cert_common_names: ["router", "router2"] }')
+    `routers` subject; a connecting router authenticates with the `router` user's password and
+    knows the router it dials (`upstream`) by certificate."""
+    routers = '{ id: "routers", cert_common_names: ["router"], usernames: ["router"] }'
+    mesh = '{ id: "routers", cert_common_names: ["router", "router2"], usernames: ["router"] }'
+    text = text.replace(routers, mesh)
     if not connect:
         return text
     text = text.replace("/router.pem", f"/{cert}.pem").replace("/router.key", f"/{cert}.key")
     text = re.sub(r'connect: \{ endpoints: \[\] \}', f'connect: {{ endpoints: {connect!r} }}'.replace("'", '"'), text)
+    text = text.replace(mesh, mesh + ',\n      { id: "upstream", cert_common_names: ["router"] }')
+    text = text.replace('{ rules: ["mesh"], subjects: ["routers"] }', '{ rules: ["mesh"], subjects: ["routers", "upstream"] }')
     return text.replace('dictionary_file: ', f'user: "router", password: "{password}", dictionary_file: ')
 
 
