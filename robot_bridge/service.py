@@ -146,6 +146,7 @@ class RobotHandle:
         self._gen = 0
         self._run_gen = 0
         self._stop_reason = ""
+        self._stop_event: str | None = None   # a row for the running mission's log when a stop ends it
         self._jobs: queue.Queue = queue.Queue()
         self._pending_missions = 0
         self._worker: threading.Thread | None = None
@@ -285,6 +286,7 @@ class RobotHandle:
                     raise CommandError(f"stopped: a stop or e-stop for {self.name} came after this mission "
                                        "was sent and before it started; send it again")
                 self._run_gen = gen
+                self._stop_event = None
                 self.link.allow_motors()
             mission_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{cmd.mission}"
             self.runner = runner
@@ -320,13 +322,12 @@ class RobotHandle:
         with self._cmd_lock:
             self._gen += 1
             self._stop_reason = reason
+            self._stop_event = event
         sent = self._stop_motors(repeat)
         had = self.mission_id
 
         def end():
             with self.lock:
-                if event is not None and self.mission_log is not None:   # why the telemetry stops here
-                    self.mission_log.event(time.time_ns(), event, self.runner.phase if self.runner else "")
                 self._end_mission(reason)
                 self.holding = False
             self._stop_motors(repeat)
@@ -387,6 +388,10 @@ class RobotHandle:
         """Close the running mission (lock held)."""
         if self.runner is None:
             return
+        with self._cmd_lock:
+            event, self._stop_event = self._stop_event, None
+        if event is not None and self.mission_log is not None:   # why the telemetry stops here
+            self.mission_log.event(time.time_ns(), event, self.runner.phase)
         res = dict(results or {})
         cmd_path = self.runner.mission.path()
         for key, trace in (("path_error_odometry", self._trace_odo), ("path_error_tracks", self._trace_track)):
