@@ -29,7 +29,9 @@
   the tracker starts afresh.
 - Catching up: a tracker that stalled (its worker blocked, the process stopped, the host
   starved) does not replay its backlog. A window ending more than ``accumulation +``
-  :attr:`LiveTracker.STALE_MARGIN_US` before the newest window received is skipped unprocessed
+  :attr:`LiveTracker.STALE_MARGIN_US` (50 ms) before the newest window received is processed but
+  its tracks are not published (``tracks_stale``); one ending more than ``accumulation +``
+  :attr:`LiveTracker.SKIP_MARGIN_US` (1 s) before it is skipped unprocessed
   (``windows_skipped_stale``; each run of skips is logged with its windows and seconds); after a
   stall the pipeline rebuilds its accumulation window from the windows it keeps before it
   publishes again (tracks not published meanwhile: ``tracks_withheld``).
@@ -235,8 +237,14 @@ class LiveTracker:
     MAX_SEQ_GAP = 100_000
 
     #: a window ending more than the accumulation time + this before the newest window received
-    #: is stale: skipped unprocessed (``windows_skipped_stale``), so a stalled tracker catches up
+    #: is stale: processed (the fleet keeps its history, the CSV its rows) but its tracks are not
+    #: published (``tracks_stale``): what is published is fresh
     STALE_MARGIN_US = 50_000
+    #: ... and one ending more than the accumulation time + this before it comes from a stall: it
+    #: is skipped unprocessed (``windows_skipped_stale``), so a stalled tracker catches up at once.
+    #: Well above a network's hiccups (TCP retransmits stall a lossy link for 0.2-0.5 s), whose
+    #: windows are worth processing: skipping them cost a lossy deployment 1-6 % of its MOTA
+    SKIP_MARGIN_US = 1_000_000
 
     #: a ground-truth pose names the nearest track within this distance, m ...
     NAME_GATE_M = 0.10
@@ -249,6 +257,7 @@ class LiveTracker:
         self._votes: dict[str, tuple[int, int]] = {}
         self._pending_names: dict[int, str] = {}
         self.camera = camera
+        self.unpublished: list[TrackedRobot] = []   # tracks of the last window, if stale: CSV only
         self.svc = svc
         self.last_seq: int | None = None
         self._last_dropped: int | None = None   # the edge's cumulative drop count in the last window
@@ -340,6 +349,7 @@ class LiveTracker:
         this window is skipped if it ends more than ``accumulation + STALE_MARGIN_US`` before it.
         ``resumed``: the worker has just come back from a stall (no window for a while): the
         tracks are withheld until the pipeline's accumulation window is full again."""
+        self.unpublished = []   # tracks of a stale window: for the CSV, not to publish
         if resumed:
             self._rebuild_pending = True
         with self.lock:
@@ -395,7 +405,8 @@ class LiveTracker:
         self.last_seq = win.seq
         self._last_dropped = win.dropped
         acc = self.pipeline.accumulation_us
-        if newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.STALE_MARGIN_US:
+        stale = newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.STALE_MARGIN_US
+        if newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.SKIP_MARGIN_US:
             self._count("windows_skipped_stale")
             if self._skipped is None:
                 self._skipped = [0, win.t_start_us, win.t_end_us, newest_end_us, 0]
@@ -442,6 +453,10 @@ class LiveTracker:
             out.append((robot_key(tr.robot or tr.track_id), msg, tr))
         with self.lock:
             self.fleet = {k: m for k, m, _ in out}
+        if stale:   # processed, logged to the CSV by the worker, not published
+            self._count("tracks_stale", len(out))
+            self.unpublished = [tr for _, _, tr in out]
+            return []
         return out
 
 
@@ -565,6 +580,8 @@ def run_live(args) -> int:
                                 svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
                             if writer is not None:
                                 writer.write(tr for _, _, tr in out)
+                        if live.unpublished and writer is not None:   # stale: logged, not published
+                            writer.write(live.unpublished)
                     except Exception as exc:   # last resort: one window must not stop the tracker
                         svc.count("windows_failed")
                         svc.error(f"window not processed ({type(exc).__name__}: {str(exc)[:300]}); "
