@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -54,7 +55,10 @@ def _register_router(sub) -> None:
                "  arena router                                  # tcp/127.0.0.1:7447\n"
                "  arena router -l tcp/0.0.0.0:7447              # reachable from other hosts\n"
                "  arena router -l tls/0.0.0.0:7447 --zenoh-config deploy/router.json5\n"
-               "  arena router -e tcp/198.18.0.2:7447           # mesh with another router")
+               "  arena router -e tcp/198.18.0.2:7447           # mesh with another router\n\n"
+               "A router that dials another one (-e, or connect in its --zenoh-config) proves itself\n"
+               "with ARENA_ZENOH_USER / ARENA_ZENOH_PASSWORD from the environment (router.env of\n"
+               "`arena certs`, a systemd EnvironmentFile), so no password is written in its config.")
     p.add_argument("-l", "--listen", metavar="ENDPOINT", action="append", default=None,
                    help="endpoint to listen on, repeatable (default: the --zenoh-config file's, else tcp/127.0.0.1:7447)")
     p.add_argument("-e", "--connect", metavar="ENDPOINT", action="append", default=None,
@@ -76,6 +80,9 @@ def _run_router(args) -> int:
     listen = list(args.listen or ([] if args.zenoh_config else ["tcp/127.0.0.1:7447"]))
     settings = ZenohSettings(mode="router", connect=list(args.connect or []), listen=listen,
                              config_file=args.zenoh_config, lease_ms=args.lease_ms)
+    if os.environ.get("ARENA_ZENOH_USER"):  # the credentials it dials other routers with (router.env)
+        settings.user = os.environ["ARENA_ZENOH_USER"]
+        settings.password = os.environ.get("ARENA_ZENOH_PASSWORD", "")
     if not settings.listen:
         settings.listen = json.loads(settings.to_zenoh_config().get_json("listen/endpoints") or "[]")
         if isinstance(settings.listen, dict):  # per-mode values

@@ -29,7 +29,9 @@ def _mesh_config(text: str, password: str, cert: str, connect: list[str]) -> str
     text = re.sub(r'connect: \{ endpoints: \[\] \}', f'connect: {{ endpoints: {connect!r} }}'.replace("'", '"'), text)
     text = text.replace(mesh, mesh + ',\n      { id: "upstream", cert_common_names: ["router"] }')
     text = text.replace('{ rules: ["mesh"], subjects: ["routers"] }', '{ rules: ["mesh"], subjects: ["routers", "upstream"] }')
-    return text.replace('dictionary_file: ', f'user: "router", password: "{password}", dictionary_file: ')
+    if password:  # else the router's credentials come from ARENA_ZENOH_USER/PASSWORD (router.env)
+        text = text.replace('dictionary_file: ', f'user: "router", password: "{password}", dictionary_file: ')
+    return text
 
 
 def test_two_routers_mesh(deployment):
@@ -42,14 +44,20 @@ def test_two_routers_mesh(deployment):
     r1 = dep.root / "router1-mesh.json5"
     r1.write_text(_mesh_config(base, pw, "router", []))
     r2 = dep.root / "router2-mesh.json5"
-    r2.write_text(_mesh_config(base, pw, "router2", [f"tls/{lab.addr('router')}:7447"]))
-    assert '"tls/198.18.0.1:7447"' in r2.read_text() and 'user: "router"' in r2.read_text()
+    # router 2 proves itself with router.env's credentials from its environment (as systemd's
+    # EnvironmentFile gives them), not with a password written into its config
+    r2.write_text(_mesh_config(base, "", "router2", [f"tls/{lab.addr('router')}:7447"]))
+    assert '"tls/198.18.0.1:7447"' in r2.read_text() and pw not in r2.read_text()
+    env_text = (dep.pki / "router.env").read_text()
+    creds = dict(line.split("=", 1) for line in env_text.split())
+    assert creds == {"ARENA_ZENOH_USER": "router", "ARENA_ZENOH_PASSWORD": pw}
 
     lab.kill(dep.router_proc)
     router1 = lab.spawn("router", arena_cmd("router", "--zenoh-config", str(r1)))
     wait_event(router1, "listening on", 30, raw=True)
     dep.router_proc = router1
-    router2 = lab.spawn("tracker", arena_cmd("router", "--zenoh-config", str(r2), "--name", "router2"))
+    router2 = lab.spawn("tracker", arena_cmd("router", "--zenoh-config", str(r2), "--name", "router2"),
+                        env=creds)
     wait_event(router2, "listening on", 30, raw=True)
 
     via2 = {"ARENA_ZENOH_CONNECT": f"tls/{lab.addr('tracker')}:7447"}
