@@ -80,7 +80,8 @@ class ViewerState:
     def __init__(self, camera: str | None = None, accumulate_us: int = 100_000,
                  H_arena_to_px: np.ndarray | None = None, arena_size_m: tuple[float, float] = (1.83, 1.83),
                  robot_size_m: tuple[float, float] = (0.10, 0.10), telemetry_len: int = 200,
-                 track_timeout_s: float = 3.0, status_timeout_s: float = 5.0):
+                 track_timeout_s: float = 3.0, status_timeout_s: float = 5.0,
+                 max_windows: int = 1000, max_events: int = 4_000_000):
         self.camera = camera
         self.accumulate_us = int(accumulate_us)
         self.H = H_arena_to_px
@@ -91,6 +92,10 @@ class ViewerState:
         self.status_timeout_s = status_timeout_s
         self._lock = threading.Lock()
         self._windows: deque[_Window] = deque()
+        #: bounds of the accumulated image whatever the windows' times say (a flood of windows
+        #: with one end time, or a camera stamping 1 µs windows): the oldest go first
+        self.max_windows, self.max_events = int(max_windows), int(max_events)
+        self._n_events = 0
         self._size: tuple[int, int] | None = None
         self._cam_info: dict = {}
         self._tracks: dict[str, _TrackView] = {}
@@ -113,13 +118,16 @@ class ViewerState:
             self.counts["windows"] += 1
             if self._windows and msg.t_end_us < self._windows[-1].t_end_us - self.accumulate_us:
                 self._windows.clear()  # sensor time went back: a restarted camera or a looping replay
+                self._n_events = 0
             self._windows.append(_Window(msg.t_end_us, msg))
+            self._n_events += msg.count
             self._size = (msg.width, msg.height)
             self._cam_info = {"camera": msg.camera, "seq": msg.seq, "t_end_us": msg.t_end_us,
                               "dropped": msg.dropped, "codec": msg.codec}
             oldest = msg.t_end_us - self.accumulate_us
-            while self._windows and self._windows[0].t_end_us <= oldest:
-                self._windows.popleft()
+            while self._windows and (self._windows[0].t_end_us <= oldest or len(self._windows) > self.max_windows
+                                     or (self._n_events > self.max_events and len(self._windows) > 1)):
+                self._n_events -= self._windows.popleft().msg.count
 
     def on_track(self, key: str, msg: Track) -> None:
         """Add a track update received on ``key``."""
@@ -265,7 +273,7 @@ class ViewerState:
                     "stale": seen is None or now - seen > self.status_timeout_s,
                 })
             w, h = self._size or (0, 0)
-            n_events = sum(win.msg.count for win in self._windows)
+            n_events = self._n_events
             return {
                 "time_ns": time.time_ns(), "frame_no": self.frame_no,
                 "image": {"width": w, "height": h, "events": n_events, "windows": len(self._windows),

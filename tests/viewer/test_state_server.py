@@ -195,3 +195,21 @@ def test_viewer_stops_on_sigterm_delivered_to_another_thread(router):
             view.kill()
             view.wait()
     assert view.returncode == 0, out
+
+
+def test_windows_of_one_end_time_are_bounded_by_count_and_events():
+    """A flood of windows stamped with one end time (a broken or hostile camera) cannot grow the
+    accumulated image without bound: the oldest windows go first, the newest are drawn."""
+    s = ViewerState(max_windows=50, max_events=120)
+    for i in range(5000):
+        s.on_window(_win(i, 1_000_000, [i % 8], [0], [1]))
+    snap = s.snapshot()
+    assert s.counts["windows"] == 5000
+    assert snap["image"]["windows"] == 50 and snap["image"]["events"] == 50
+    s2 = ViewerState(max_windows=1000, max_events=120)
+    for i in range(300):
+        s2.on_window(_win(i, 1_000_000, [0] * 10, [0] * 10, [1] * 10))
+    assert s2.snapshot()["image"]["events"] == 120 and s2.snapshot()["image"]["windows"] == 12
+    # the newest window is drawn
+    s.on_window(_win(9999, 1_000_000, [3], [2], [0]))
+    assert s.render_index()[2, 3] == 2
