@@ -312,6 +312,9 @@ class EventWindow(Message):
     dropped: int = _spec("int", lo=0, default=0)  # slices dropped at the edge so far
     filtered: int = _spec("int", lo=0, default=0)  # events removed by edge filters in this window
     publish_ns: int = _spec("int", lo=0, default=0)  # host wall clock at publish
+    #: host capture time - sensor time, ns: host time of sensor µs t is t * 1000 + this (None:
+    #: unknown, e.g. a file replayed faster than real time); the edge's sliding-minimum estimate
+    sensor_to_host_ns: int | None = _spec("int", optional=True)
 
     def _check(self, limits: DecodeLimits) -> None:
         if self.t_end_us < self.t_start_us:
@@ -341,6 +344,9 @@ class Track(Message):
     window_end_us: int | None = _spec("int", optional=True)  # end of the slice this update came from
     edge_publish_ns: int | None = _spec("int", optional=True, lo=0)  # when the edge published that slice
     tracker_publish_ns: int | None = _spec("int", optional=True, lo=0)  # when the tracker published this
+    #: host capture time of ``stamp_us``, ns since the epoch (stamp_us * 1000 + the edge's
+    #: sensor_to_host_ns; None when the edge did not know it): lines tracks up with host-stamped truth
+    host_ns: int | None = _spec("int", optional=True)
 
 
 @dataclass

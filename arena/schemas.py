@@ -55,6 +55,9 @@ FIELD_DOCS: dict[str, dict[str, str]] = {
         "dropped": "windows dropped at the edge so far (total since it started)",
         "filtered": "events removed by the edge's noise filters from this window",
         "publish_ns": "host wall clock when the edge published this window, ns since the Unix epoch (0: unknown)",
+        "sensor_to_host_ns": "host capture time minus sensor time, ns: the host time of sensor time t_us is "
+                             "t_us * 1000 + this (the edge's sliding-minimum estimate over 10 s; absent or null "
+                             "when unknown, e.g. a file replayed faster than real time)",
     },
     "Track": {
         "track_id": "tracker's track number (stable while the track lives)",
@@ -73,6 +76,8 @@ FIELD_DOCS: dict[str, dict[str, str]] = {
         "window_end_us": "end of the event window this update came from, sensor clock, µs",
         "edge_publish_ns": "host wall clock when the edge published that window, ns since the Unix epoch",
         "tracker_publish_ns": "host wall clock when the tracker published this message, ns since the Unix epoch",
+        "host_ns": "host capture time of stamp_us, ns since the Unix epoch (stamp_us * 1000 + the window's "
+                   "sensor_to_host_ns; null when the edge did not know it)",
     },
     "Telemetry": {
         "robot": "robot name",

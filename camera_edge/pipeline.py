@@ -19,6 +19,8 @@ class Window:
     t_end_us: int
     events: np.ndarray
     filtered: int
+    #: host capture time - sensor time, ns (None: unknown, e.g. a file replayed faster than real time)
+    sensor_to_host_ns: int | None = None
 
 
 class EdgePipeline:

@@ -26,6 +26,7 @@ from arena.events import empty_events
 from arena.keys import events_key
 from arena.messages import EventWindow
 from arena.service import Service
+from camera_edge.clock import SensorClock
 from camera_edge.filters import HotPixelFilter
 from camera_edge.pipeline import EdgePipeline, Window
 from camera_edge.sources import EventSource, FileSource
@@ -110,7 +111,8 @@ class WindowPublisher:
         data = encode(w.events, self.codec, t_ref_us=w.t_start_us)
         msg = EventWindow(camera=self.camera, seq=seq, t_start_us=w.t_start_us, t_end_us=w.t_end_us,
                           width=self.width, height=self.height, count=int(w.events.size), codec=self.codec,
-                          data=data, dropped=self.dropped, filtered=int(w.filtered), publish_ns=time.time_ns())
+                          data=data, dropped=self.dropped, filtered=int(w.filtered), publish_ns=time.time_ns(),
+                          sensor_to_host_ns=w.sensor_to_host_ns)
         payload = msg.encode()
         enc_ms = (time.perf_counter() - t0) * 1e3
         self._pub.put(payload)
@@ -145,6 +147,14 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
     Returns the final counters (events in/out, windows, drops, ...)."""
     stop = stop or threading.Event()
     live = not isinstance(source, FileSource)
+    # host capture time of the windows: from a live camera, or a file played at the sensor's pace
+    clock = SensorClock() if live or getattr(source, "speed", 0.0) == 1.0 else None
+
+    def stamp(wins: list) -> list:
+        if clock is not None and clock.offset_ns is not None:
+            for w in wins:
+                w.sensor_to_host_ns = clock.offset_ns
+        return wins
     # load the compiled codec and filters now (seconds on a busy machine), not on the first windows
     encode(empty_events(1), codec)
     for f in pipeline.filters:
@@ -192,12 +202,14 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
                     break
                 ev = source.read(timeout=0.05)
                 if ev is None:
-                    wins = pipeline.flush()
+                    wins = stamp(pipeline.flush())
                     svc.count("events_filtered", sum(w.filtered for w in wins))
                     pub.submit(wins, block=True)
                     break
                 svc.count("events_in", ev.size)
-                wins = pipeline.push(ev, source.time_us)
+                if clock is not None and ev.size:
+                    clock.observe(int(ev["t"][-1]), time.time_ns())
+                wins = stamp(pipeline.push(ev, source.time_us))
                 svc.count("events_filtered", sum(w.filtered for w in wins))
                 pub.submit(wins, block=not live)
         finally:

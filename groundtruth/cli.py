@@ -29,6 +29,7 @@ def register_eval(sub) -> None:
                     "(MOTA, MOTP, ID switches, fragmentations), IDF1 and HOTA. A robot counts once it\n"
                     "has moved. Frames are the tracks' update times; truth is interpolated there.\n\n"
                     "tracks CSV: t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events\n"
+                    "            [,host_ns: host capture time of t_us, ns since the epoch, live tracks]\n"
                     "truth:      a truth CSV t_us,robot,x_m,y_m[,yaw_rad,...] (simulator truth or\n"
                     "            `arena groundtruth`: arena frame, the tracks' clock), or motion capture:\n"
                     "            a rosbag2 folder / .mcap file of geometry_msgs/msg/PoseStamped (one topic\n"
@@ -44,6 +45,7 @@ def register_eval(sub) -> None:
                "  arena eval --tracks tracks.csv --truth mocap_bag/ --time-offset auto --align rigid\n"
                "  arena eval --tracks tracks.csv --truth run.mcap --truth-topic '/vrpn*/pose' \\\n"
                "      --body zumo1=/vrpn_client_node/Zumo_01/pose --time-offset -1700000000.1234\n"
+               "  arena eval --tracks tracks.csv --truth mocap_bag/ --track-clock host --time-offset 0\n"
                "Exit code 0 when scored; 1 when there was no ground truth to score against (no frame\n"
                "inside the truth's time span, or no robot that moved: MOTA, IDF1, HOTA are n/a; or\n"
                "mocap truth that could not be aligned); 2 for unreadable input (including a truth\n"
@@ -62,6 +64,10 @@ def register_eval(sub) -> None:
     m.add_argument("--time-offset", metavar="S|auto", default="0",
                    help="truth time + S seconds = track time (default 0); 'auto' estimates it by\n"
                         "cross-correlating the robots' speeds, refined on the positions")
+    m.add_argument("--track-clock", choices=("sensor", "host"), default="sensor",
+                   help="score the tracks at their sensor time t_us (default) or at their host capture\n"
+                        "time host_ns (live tracks: the edge's estimate of the camera's clock on its\n"
+                        "host), which lines up with truth stamped by a host's clock (ROS, mocap)")
     m.add_argument("--align", choices=("none", "rigid", "similarity"), default=None,
                    help="fit the truth's frame to the tracks' (2-D): none (default for a truth CSV),\n"
                         "rigid (default for a bag or pose CSV) or similarity (also a scale)")
@@ -152,10 +158,12 @@ def run_eval(args: argparse.Namespace) -> int:
     except ValueError:
         return fail(f"--time-offset expects seconds (e.g. -0.1234) or auto, got {args.time_offset!r}")
     try:
-        tracks = read_tracks_csv(args.tracks)
+        tracks = read_tracks_csv(args.tracks, clock=args.track_clock)
         truth, kind, lines = _load_truth(args)
     except (CsvFormatError, MocapError) as exc:
         return fail(str(exc))
+    if args.track_clock == "host":
+        lines.append(f"tracks on the host clock (host_ns): {len(tracks)} rows")
     if len(truth) == 0:
         return fail(f"truth file {args.truth} has a header but no rows")
     exclude = () if args.include_tentative else ("tentative",)

@@ -138,15 +138,26 @@ def _column(header: list[str], rows: list[list[str]], name: str, kind: str, path
     return np.asarray(out, dtype=object if kind == "s" else (np.float64 if kind == "f" else np.int64))
 
 
-def read_tracks_csv(path: str | Path) -> np.ndarray:
+def read_tracks_csv(path: str | Path, clock: str = "sensor") -> np.ndarray:
     """Read a tracker CSV into a :data:`TRACK_DTYPE` array (times µs, metres, rad, m/s, px).
 
     Required columns: ``t_us,track_id,x_m,y_m``; the others of :data:`TRACK_COLUMNS` are optional.
+    ``clock="host"``: ``t_us`` becomes the rows' host capture time (the ``host_ns`` column of live
+    tracks, µs since the epoch); rows without one are left out, and a file with none is an error.
     Raises :class:`CsvFormatError` for a missing or empty file, a wrong header or a bad value.
     """
+    if clock not in ("sensor", "host"):
+        raise ValueError(f"clock must be 'sensor' or 'host', got {clock!r}")
     header, rows = _read_csv(path, TRACK_REQUIRED, "tracks")
+    if clock == "host":
+        host = _column(header, rows, "host_ns", "i", path, default=-1)
+        if not (host >= 0).any():
+            raise CsvFormatError(f"{path}: no row has a host_ns (tracks of a file replayed faster than real "
+                                 "time, or of an older tracker): score on the sensor clock")
+        rows = [r for r, h in zip(rows, host) if h >= 0]
+        host = host[host >= 0]
     out = np.empty(len(rows), dtype=TRACK_DTYPE)
-    out["t_us"] = _column(header, rows, "t_us", "i", path)
+    out["t_us"] = host // 1000 if clock == "host" else _column(header, rows, "t_us", "i", path)
     for name in ("track_id", "robot", "state"):
         out[name] = _column(header, rows, name, "s", path)
     for name in ("x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps", "u_px", "v_px"):

@@ -258,6 +258,7 @@ class LiveTracker:
         self._pending_names: dict[int, str] = {}
         self.camera = camera
         self.unpublished: list[TrackedRobot] = []   # tracks of the last window, if stale: CSV only
+        self.sensor_to_host_ns: int | None = None     # of the last window handled (the edge's estimate)
         self.svc = svc
         self.last_seq: int | None = None
         self._last_dropped: int | None = None   # the edge's cumulative drop count in the last window
@@ -403,6 +404,7 @@ class LiveTracker:
                             "our queue dropped them); this one was published %.0f ms ago",
                             self.camera, gap - at_edge - here, win.seq, waited)
         self.last_seq = win.seq
+        self.sensor_to_host_ns = win.sensor_to_host_ns
         self._last_dropped = win.dropped
         acc = self.pipeline.accumulation_us
         stale = newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.STALE_MARGIN_US
@@ -449,7 +451,8 @@ class LiveTracker:
                         x=float(tr.x), y=float(tr.y), yaw=_opt(tr.yaw), vx=_opt(tr.vx), vy=_opt(tr.vy),
                         u_px=_opt(tr.u), v_px=_opt(tr.v), state=tr.state, n_events=int(tr.n_events),
                         window_end_us=win.t_end_us, edge_publish_ns=win.publish_ns or None,
-                        tracker_publish_ns=now_ns)
+                        tracker_publish_ns=now_ns,
+                        host_ns=None if win.sensor_to_host_ns is None else tr.t_us * 1000 + win.sensor_to_host_ns)
             out.append((robot_key(tr.robot or tr.track_id), msg, tr))
         with self.lock:
             self.fleet = {k: m for k, m, _ in out}
@@ -579,9 +582,9 @@ def run_live(args) -> int:
                             if edge:
                                 svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
                             if writer is not None:
-                                writer.write(tr for _, _, tr in out)
+                                writer.write((tr for _, _, tr in out), live.sensor_to_host_ns)
                         if live.unpublished and writer is not None:   # stale: logged, not published
-                            writer.write(live.unpublished)
+                            writer.write(live.unpublished, live.sensor_to_host_ns)
                     except Exception as exc:   # last resort: one window must not stop the tracker
                         svc.count("windows_failed")
                         svc.error(f"window not processed ({type(exc).__name__}: {str(exc)[:300]}); "

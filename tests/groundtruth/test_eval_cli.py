@@ -258,3 +258,29 @@ def test_eval_bag_without_rosbags_is_one_line(sim_run, tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2, r.stdout + r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "pip install 'arena-fleet[ros2]'" in r.stderr, r.stderr
+
+
+def test_eval_on_the_host_clock_lines_tracks_up_with_host_stamped_truth(files, tmp_path):
+    """Live tracks carry host_ns (the host capture time); truth stamped by a host clock (mocap,
+    ROS) lines up with it under --track-clock host, and not on the sensor clock."""
+    tp, gp = files
+    host0_us = 1_700_000_000_000_000
+    lines = tp.read_text().splitlines()
+    rows = [lines[0] + ",host_ns"] + [ln + f",{(int(ln.split(',')[0]) + host0_us) * 1000 + 789}" for ln in lines[1:]]
+    tp.write_text("\n".join(rows) + "\n")
+    truth = read_truth_csv(gp)
+    truth["t_us"] += host0_us
+    gh = tmp_path / "host_truth.csv"
+    write_truth_csv(gh, truth)
+    tracks = read_tracks_csv(tp, clock="host")
+    assert tracks["t_us"][0] == host0_us and len(tracks) == 400
+    r = arena("eval", "--tracks", tp, "--truth", gh, "--track-clock", "host", "--json", tmp_path / "h.json")
+    assert r.returncode == 0, r.stderr
+    assert "tracks on the host clock" in r.stdout
+    scores = json.loads((tmp_path / "h.json").read_text())["scores"]
+    assert abs(scores["mae_cm"] - 1.0) < 0.05, scores
+    assert arena("eval", "--tracks", tp, "--truth", gh).returncode == 1   # sensor clock: no overlap
+    plain = tmp_path / "plain.csv"
+    plain.write_text("\n".join(lines) + "\n")
+    r = arena("eval", "--tracks", plain, "--truth", gh, "--track-clock", "host")
+    assert r.returncode == 2 and "no row has a host_ns" in r.stderr

@@ -163,3 +163,28 @@ def test_inbox_keeps_the_newest_counts_what_it_dropped_and_wakes_the_worker():
     t0 = time.monotonic()
     assert box.get(5.0) == ("late", 0)     # woken by the put, not by the timeout
     assert time.monotonic() - t0 < 2.0
+
+
+def test_tracks_carry_the_host_capture_time_of_windows_that_know_it():
+    import io
+
+    from tracker.pipeline import TrackCsvWriter
+
+    rng = np.random.default_rng(9)
+    ev = window(rng, [line_pose(200, 200, 100.0, 0.0)], 0, 400_000)
+    off = 1_700_000_000_123_456_789
+    live = LiveTracker(make(), "c0")
+    out = []
+    for k in range(30):
+        w = win(ev, k)
+        if k >= 20:
+            w.sensor_to_host_ns = off
+        out = live.handle(w.encode(), now_ns=1) or out
+        if k == 19:
+            assert out and all(m.host_ns is None for _, m, _ in out)
+    assert out and all(m.host_ns == m.stamp_us * 1000 + off for _, m, _ in out)
+    buf = io.StringIO()
+    TrackCsvWriter(buf).write([tr for _, _, tr in out], live.sensor_to_host_ns)
+    header, row = buf.getvalue().splitlines()[:2]
+    assert header.endswith(",host_ns")
+    assert int(row.split(",")[-1]) == int(row.split(",")[0]) * 1000 + off
