@@ -42,6 +42,7 @@ def register(subparsers) -> None:
                "  arena demo --robots 2 --mission circle --power 0.5 --duration 20\n"
                "  arena demo --lighting dimmed --view         # and open http://127.0.0.1:8080\n"
                "  arena demo --duration 10 --out /tmp/runs --quiet\n"
+               "  arena demo --markers                         # ArUco markers on the shells, webcam truth from them\n"
                "  arena demo --prepare                         # once after installing: compile, then exit\n"
                "Afterwards, to watch the recorded run again (the replay is its own router):\n"
                "  arena replay RUN_DIR --mode router --listen tcp/127.0.0.1:7447 --start-delay 3 \\\n"
@@ -55,6 +56,10 @@ def register(subparsers) -> None:
     p.add_argument("--lighting", choices=LIGHTING, default="full", help="ceiling lighting (default full)")
     p.add_argument("--duration", type=float, default=30.0, help="seconds of missions (default 30)")
     p.add_argument("--seed", type=int, default=0, help="simulator seed (default 0)")
+    p.add_argument("--markers", action="store_true",
+                   help="print ArUco markers on the simulated shells and take the webcam ground truth from "
+                        "them (default: plain coloured shells, as the lab's robots, and the webcam ground "
+                        "truth by colour: HSV blobs, heading from the dark front window strip, else motion)")
     p.add_argument("--tracker", choices=("fleet", "idtrack"), default="fleet", help="tracker (default fleet)")
     p.add_argument("--control", choices=("closed", "paper"), default="closed",
                    help="closed: robots follow their path using their own tracks (default); paper: the "
@@ -117,14 +122,47 @@ def _robot_names(n: int) -> list[str]:
     return [spec.name for spec in Scenario(n_robots=n).robot_specs()]
 
 
-def _robot_markers(n: int) -> list[str]:
-    """``--marker ID=NAME`` arguments of the ground truth: the simulator's shells carry ArUco
-    markers, and the webcam's poses must carry the robots' names (the tracker names its tracks
-    after them, and the bridge closes its loop on ``arena/robots/<name>``)."""
+def _robot_specs(n: int, markers: bool) -> list:
+    """The robots ``arena sim --robots n [--markers]`` simulates (names, shell colours, marker ids)."""
     from simulator.scenarios import Scenario
 
-    return [a for spec in Scenario(n_robots=n).robot_specs() if spec.marker_id is not None
-            for a in ("--marker", f"{spec.marker_id}={spec.name}")]
+    return Scenario(n_robots=n, markers=markers).robot_specs()
+
+
+#: how the demo's webcam ground truth finds the robots, by ``--markers``
+GROUND_TRUTH = {
+    False: ("colour", "colour blobs (HSV from each shell's colour); heading modulo 90 deg from the square "
+                      "shell's outline, resolved by the dark front window strip, else by the direction of motion"),
+    True: ("markers", "ArUco markers on the shells (unique ids; heading from each marker's orientation)"),
+}
+
+
+def _groundtruth_args(n: int, markers: bool) -> list[str]:
+    """``arena groundtruth`` arguments that find the simulator's robots: by their ArUco markers
+    (``--detector aruco --marker ID=NAME``) with ``markers``, else by their shell colours
+    (``--detector hsv --robot NAME=#rrggbb``). Either way the webcam's poses carry the robots'
+    names (the tracker names its tracks after them, and the bridge closes its loop on
+    ``arena/robots/<name>``)."""
+    specs = _robot_specs(n, markers)
+    if markers:
+        return ["--detector", "aruco", *[a for spec in specs if spec.marker_id is not None
+                                         for a in ("--marker", f"{spec.marker_id}={spec.name}")]]
+    return ["--detector", "hsv", *[a for spec in specs for a in
+                                   ("--robot", f"{spec.name}=#" + "".join(f"{int(c):02x}" for c in spec.color_rgb))]]
+
+
+def _colour_problem(n: int) -> str | None:
+    """Why the webcam cannot find the first ``n`` simulated robots by colour (a near-white shell
+    on the white mats), or None."""
+    from groundtruth.rgb import colour_detectable
+
+    for i, spec in enumerate(_robot_specs(n, False)):
+        why = colour_detectable(spec.color_rgb)
+        if why:
+            fewer = f", or at most {i} robot{'s' if i != 1 else ''} (robot {i + 1} is {spec.name})" if i else ""
+            return (f"robot {spec.name} cannot be found by colour for the webcam ground truth: {why}. "
+                    f"Run with --markers (ArUco markers on the shells, ground truth from them){fewer}")
+    return None
 
 
 def _print_table(line: str, quiet: bool, t0: float | None, duration: float) -> None:
@@ -151,6 +189,8 @@ def _usage_error(args) -> str | None:
         return "--duration must be positive"
     if not 0 <= args.observer_nice <= 19:
         return "--observer-nice must be in 0..19 (a process may only lower its priority)"
+    if not getattr(args, "prepare", False) and not getattr(args, "markers", False):
+        return _colour_problem(args.robots)
     return None
 
 
@@ -199,6 +239,8 @@ def run(args) -> int:
     demo = _Run(run_dir, f"tcp/127.0.0.1:{base}", base + 1, base + 2, base + 3, _robot_names(args.robots))
     print(f"arena demo: {args.robots} robots, {args.mission} missions at {args.power:.0%} power, "
           f"{args.lighting} light, {args.duration:.0f} s; run folder {run_dir}", flush=True)
+    kind, how = GROUND_TRUTH[bool(args.markers)]
+    print(f"webcam ground truth: {kind}: {how}", flush=True)
     stop = stop_on_signals()
     demo.t_start = time.monotonic()
     sup = Supervisor(demo.logs)
@@ -258,13 +300,19 @@ def _run_lab(sup: Supervisor, demo: _Run, args, stop) -> None:
         _watch_missions(sup, demo, alive, args.duration, stop)
 
 
+def _sim_cmd(demo: _Run, args) -> list[str]:
+    """The ``arena sim`` command of the run (``--markers`` only when the demo was asked for them)."""
+    return python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
+                      "--camera-port", str(demo.cam_port), "--webcam-port", str(demo.web_port),
+                      "--robot-base-port", str(demo.robot_base), "--layout", _layout(args.mission),
+                      "--truth-csv", str(demo.run_dir / "truth.csv"), "--calibration-out", str(demo.calib),
+                      "--record-raw", str(demo.run_dir / "events.raw"), "--publish-truth",
+                      *(["--markers"] if args.markers else []), *demo.z)
+
+
 def _start_router_sim_scorer(sup: Supervisor, demo: _Run, args) -> list:
     """Start the router, the simulator and the live scorer without waiting for them."""
-    sim = python_cmd("sim", "--robots", str(args.robots), "--lighting", args.lighting, "--seed", str(args.seed),
-                     "--camera-port", str(demo.cam_port), "--webcam-port", str(demo.web_port),
-                     "--robot-base-port", str(demo.robot_base), "--layout", _layout(args.mission),
-                     "--truth-csv", str(demo.run_dir / "truth.csv"), "--calibration-out", str(demo.calib),
-                     "--record-raw", str(demo.run_dir / "events.raw"), "--publish-truth", *demo.z)
+    sim = _sim_cmd(demo, args)
     return [sup.start(ProcSpec("router", python_cmd("router", "-l", demo.endpoint, "--name", "demo"),
                                ready="listening on"), wait=False),
             sup.start(ProcSpec("sim", sim, ready="running", ready_timeout_s=90), wait=False),
@@ -288,7 +336,7 @@ def _service_specs(demo: _Run, args, alive: _AliveSet) -> list[ProcSpec]:
     specs.append(ProcSpec("groundtruth", python_cmd("groundtruth", "--video", f"{web}/stream.mjpg",
                                                      "--calibration", f"{web}/calibration.json", "--clock", "stream",
                                                      "--name", "webcam", "--csv", str(demo.run_dir / "groundtruth.csv"),
-                                                     *_robot_markers(args.robots), *z),
+                                                     *_groundtruth_args(args.robots, args.markers), *z),
                           ready_check=alive.has("groundtruth", "webcam"), ready_timeout_s=90,
                           nice=args.observer_nice))
     if args.view:
@@ -543,22 +591,46 @@ def _missions_start_ns(manifests: list[dict]) -> int | None:
     return min(starts) if starts else None
 
 
-def _report(run_dir: Path, args, summary: dict, scores, tracks, truth, end_us, manifests) -> Path:
-    """Write the run's ``report.md`` (with plots); also scores the webcam ground truth against
-    the exact poses (``summary["webcam"]``)."""
-    from demo.report import replay_hint, run_files, webcam_as_tracks, write_demo_report
+def _webcam_scores(run_dir: Path, truth, end_us):
+    """The webcam ground truth (``groundtruth.csv``) scored like a tracker against the exact poses
+    ``truth`` until ``end_us``; None when the file is missing or has no rows."""
+    from demo.report import webcam_as_tracks
     from groundtruth.metrics import evaluate, read_truth_csv
 
-    webcam_scores = None
-    if (run_dir / "groundtruth.csv").exists():
-        cam = read_truth_csv(run_dir / "groundtruth.csv")
-        if end_us is not None:
-            cam = cam[cam["t_us"] <= end_us]
-        webcam_scores = evaluate(webcam_as_tracks(cam), truth, gate_m=0.10)
-        w = webcam_scores.to_dict()
-        summary["webcam"] = {k: w[k] for k in ("precision", "recall", "mae_cm", "heading_mae_deg", "n_frames")}
+    path = run_dir / "groundtruth.csv"
+    if not path.exists():
+        return None
+    try:
+        cam = read_truth_csv(path)
+    except Exception:  # noqa: BLE001 - a header without rows (nothing detected) or an unreadable file
+        return None
+    if end_us is not None:
+        cam = cam[cam["t_us"] <= end_us]
+    return evaluate(webcam_as_tracks(cam), truth, gate_m=0.10)
+
+
+def _heading_sources(log_path: Path) -> dict | None:
+    """The colour ground truth's closing ``headings: N from the front mark, M from motion, K unknown``
+    from its log, as ``{"front_mark", "motion", "unknown"}``."""
+    import re
+
+    try:
+        found = re.findall(r"headings: (\d+) from the front mark, (\d+) from motion, (\d+) unknown",
+                           log_path.read_text(errors="replace"))
+    except OSError:
+        return None
+    if not found:
+        return None
+    return dict(zip(("front_mark", "motion", "unknown"), (int(v) for v in found[-1])))
+
+
+def _report(run_dir: Path, args, summary: dict, scores, tracks, truth, manifests, webcam_scores=None) -> Path:
+    """Write the run's ``report.md`` (with plots), with the webcam ground truth's scores."""
+    from demo.report import replay_hint, run_files, write_demo_report
+
     setup = (f"{args.robots} robots, {args.mission} missions at {args.power:.0%} power, {args.lighting} light, "
-             f"{args.duration:g} s of missions, seed {args.seed}, tracker `{args.tracker}`, control `{args.control}`.")
+             f"{args.duration:g} s of missions, seed {args.seed}, tracker `{args.tracker}`, control `{args.control}`, "
+             f"shells {'with ArUco markers' if getattr(args, 'markers', False) else 'without markers'}.")
     return write_demo_report(run_dir, setup, summary, scores, tracks, truth, webcam_scores, manifests,
                              files=run_files(run_dir, also=("report.md", "report/", "summary.json")),
                              replay=replay_hint(run_dir, args.view_port))
@@ -578,6 +650,9 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
     if interrupted:
         facts["interrupted"] = True
     tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
+    gt_kind, gt_how = GROUND_TRUTH[bool(getattr(args, "markers", False))]
+    facts["groundtruth"] = {"method": gt_kind, "how": gt_how}
+    webcam_scores = None
     scored = None
     if tracks.exists() and truth.exists():
         from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
@@ -591,7 +666,12 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
             facts["truth_rows"] = int(len(gt))
             scores = evaluate(tr, gt, gate_m=0.10)
             facts["scores"] = scores.to_dict()
-            scored = (scores, tr, gt, end_us)
+            scored = (scores, tr, gt)
+            webcam_scores = _webcam_scores(run_dir, gt, end_us) if len(gt) else None
+            if webcam_scores is not None:
+                w = webcam_scores.to_dict()
+                facts["webcam"] = {"method": gt_kind,
+                                   **{k: w[k] for k in ("precision", "recall", "mae_cm", "heading_mae_deg", "n_frames")}}
         except Exception as exc:  # noqa: BLE001 - report what failed rather than crash at the end
             facts["score_error"] = str(exc) or type(exc).__name__
     else:
@@ -599,6 +679,9 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
     rt = _sim_realtime(run_dir / "logs" / "sim.log")
     if rt is not None:
         facts["sim_realtime"] = rt
+    headings = _heading_sources(run_dir / "logs" / "groundtruth.log")
+    if headings is not None:
+        facts["groundtruth"]["headings"] = headings
     manifests = read_manifests(run_dir / "telemetry")
     lat = _latency(run_dir / "logs" / "scorer.log")
     wins = _windows(run_dir / "arena.mcap", _missions_start_ns(manifests))
@@ -611,13 +694,14 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
         return verdict(exit_codes=codes, killed=killed, died=died, failure=facts.get("failure"),
                        interrupted=interrupted, manifests=manifests, robots=args.robots, sim_realtime=rt,
                        windows=wins, truth_rows=facts.get("truth_rows"), scores=facts.get("scores"),
-                       score_error=facts.get("score_error"), report_error=facts.get("report_error"))
+                       score_error=facts.get("score_error"), report_error=facts.get("report_error"),
+                       webcam=facts.get("webcam"), webcam_method=gt_kind)
 
     ok, problems = judge()
     summary = {"ok": ok, "problems": problems, **facts}
     if scored is not None:
         try:
-            summary["report"] = str(_report(run_dir, args, summary, *scored, manifests))
+            summary["report"] = str(_report(run_dir, args, summary, *scored, manifests, webcam_scores))
         except Exception as exc:  # noqa: BLE001 - the scores stand without their report
             summary["report_error"] = facts["report_error"] = f"{type(exc).__name__}: {exc}"
             summary["ok"], summary["problems"] = judge()
@@ -640,6 +724,20 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
               f"({s.get('n_frames', 0)} frames, {s.get('n_gt', 0)} robot positions)")
     else:
         print(f"no score: {summary.get('score_error', 'tracks or truth missing')}")
+    print("scored against the simulator's exact poses (truth.csv)")
+    cam = summary.get("webcam")
+    if cam:
+        def g(key: str, fmt: str, unit: str = "") -> str:
+            v = cam.get(key)
+            return format(v, fmt) + unit if isinstance(v, (int, float)) else "n/a"
+        hs = summary["groundtruth"].get("headings")
+        print(f"webcam ground truth by {gt_kind} ({gt_how}) against the exact poses: precision "
+              f"{g('precision', '.3f')}  recall {g('recall', '.3f')}  MAE {g('mae_cm', '.2f', ' cm')}  heading MAE "
+              f"{g('heading_mae_deg', '.1f', '°')}  ({cam.get('n_frames', 0)} frames)"
+              + (f"; headings: {hs['front_mark']} from the front mark, {hs['motion']} from motion, "
+                 f"{hs['unknown']} unknown" if hs else ""))
+    else:
+        print(f"webcam ground truth by {gt_kind}: not scored (groundtruth.csv missing or without rows)")
     if first_track_s is not None:
         print(f"first track after {first_track_s:.1f} s")
     if rt is not None:

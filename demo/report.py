@@ -111,12 +111,15 @@ def write_demo_report(run_dir: str | Path, setup: str, summary: dict, scores: Sc
     plot_trajectories(fig_dir / "trajectories.png", tracks, truth)
     plot_errors(fig_dir / "errors.png", scores)
     until = summary.get("scored_until_us")
+    gt = summary.get("groundtruth") or {}
     problems = list(summary.get("problems") or [])
     if summary.get("ok") and not problems:
         verdict = [f"**OK**: {OK_TEXT}.", ""]
     else:
         verdict = [f"**NOT OK**: {len(problems) or 'unknown'} problem(s):", "",
                    *[f"- {p}" for p in problems], ""]
+    if gt.get("method"):
+        setup = f"{setup} Webcam ground truth by {gt['method']}."
     md = [f"# arena demo: {run_dir.name}", "", *verdict, setup, "",
           "## Tracking", "",
           f"`tracks.csv` against the simulator's exact poses (`truth.csv`), gate {scores.gate_cm:g} cm, "
@@ -137,10 +140,14 @@ def write_demo_report(run_dir: str | Path, setup: str, summary: dict, scores: Sc
                markdown_table(MISSION_HEADERS, mission_rows(manifests)), ""]
     if webcam_scores is not None:
         s = webcam_scores
+        how = f"by {gt['method']}: {gt['how']}" if gt.get("method") else "on the simulated webcam"
+        hs = gt.get("headings")
         md += ["## Webcam ground truth", "",
-               "`groundtruth.csv` (`arena groundtruth`, ArUco markers on the simulated webcam) scored like a "
+               f"`groundtruth.csv` (`arena groundtruth` on the simulated webcam, {how}) scored like a "
                "tracker against the exact poses: how far a lab without a simulator can trust its "
-               "webcam scoring.", "",
+               "webcam scoring."
+               + (f" Headings: {hs['front_mark']} from the front mark, {hs['motion']} from motion, "
+                  f"{hs['unknown']} unknown." if hs else ""), "",
                markdown_table(["precision", "recall", "MAE cm", "heading MAE deg", "frames"],
                               [[fmt(s.precision, missing=NA), fmt(s.recall, missing=NA),
                                 fmt(s.mae_cm, "{:.2f}", NA), fmt(s.heading_mae_deg, "{:.2f}", NA),

@@ -19,6 +19,9 @@ MAX_SIM_LAG_S = 1.0
 CLEAN_EXIT_CODES = (0, -15)
 #: how a mission may end in a good run: all its laps, or the demo stopping the bridge at the end
 GOOD_MISSION_ENDS = ("finished", "interrupted: bridge shut down")
+#: the webcam ground truth must find the robots in at least this share of the scored positions: a lab
+#: without a simulator scores against it, so one that misses most robots would score nothing
+MIN_WEBCAM_RECALL = 0.5
 
 
 def verdict(*, exit_codes: Mapping[str, int | None],
@@ -35,6 +38,8 @@ def verdict(*, exit_codes: Mapping[str, int | None],
             scores: Mapping | None = None,
             score_error: str | None = None,
             report_error: str | None = None,
+            webcam: Mapping | None = None,
+            webcam_method: str | None = None,
             max_lag_s: float = MAX_SIM_LAG_S) -> tuple[bool, list[str]]:
     """``(ok, problems)`` of a demo run; ``ok`` is True exactly when ``problems`` is empty.
 
@@ -57,6 +62,11 @@ def verdict(*, exit_codes: Mapping[str, int | None],
         truth_rows: rows of the simulator's truth in the scored span.
         scores: :meth:`groundtruth.metrics.Scores.to_dict` of the tracks against the truth.
         score_error, report_error: why scoring or the report failed.
+        webcam: the webcam ground truth's scores against the exact poses (``precision``,
+            ``recall``, ``mae_cm``, ...); None when it was not scored.
+        webcam_method: how the webcam ground truth found the robots (``"colour"`` or
+            ``"markers"``); given, the run needs a webcam ground truth that found the robots in at
+            least :data:`MIN_WEBCAM_RECALL` of the positions (checked only when there was truth).
         max_lag_s: the simulator's worst lag allowed, s.
     """
     p: list[str] = []
@@ -104,6 +114,15 @@ def verdict(*, exit_codes: Mapping[str, int | None],
         p.append(f"not scored: {score_error or 'tracks.csv or truth.csv is missing'}")
     elif not scores.get("n_gt"):
         p.append(f"no ground truth in the {scores.get('n_frames', 0)} scored frame(s): MOTA, IDF1, HOTA n/a")
+    if webcam_method is not None and truth_rows:
+        if webcam is None:
+            p.append(f"no webcam ground truth ({webcam_method}): groundtruth.csv is missing or has no rows; "
+                     "see logs/groundtruth.log")
+        elif not (webcam.get("recall") or 0) >= MIN_WEBCAM_RECALL:
+            r = webcam.get("recall")
+            p.append(f"the webcam ground truth ({webcam_method}) found the robots in only "
+                     f"{'n/a' if r is None else format(r, '.0%')} of their positions (under "
+                     f"{MIN_WEBCAM_RECALL:.0%}): scoring against it would measure little; see logs/groundtruth.log")
     if report_error:
         p.append(f"no report.md: {report_error}")
     return not p, p

@@ -215,7 +215,8 @@ def register_groundtruth(sub) -> None:
         formatter_class=_formatter,
         description="Read a webcam (device index, video file or URL such as the simulator's MJPEG\n"
                     "stream), detect the robots with ArUco markers (unique ids and heading) or shell\n"
-                    "colours (HSV + contours; heading from the front mark or the motion), map them to\n"
+                    "colours (HSV + contours; the square shell's heading, known modulo 90 deg, resolved\n"
+                    "by the dark front mark / window strip, else by the direction of motion), map them to\n"
                     "arena metres with a homography calibrated at shell-top height, and publish\n"
                     "arena/groundtruth/<robot>. Optionally write the CSV\n"
                     "t_us,robot,x_m,y_m,yaw_rad,u_px,v_px,detector and annotated frames.\n"
@@ -344,6 +345,15 @@ def run_groundtruth(args: argparse.Namespace) -> int:
                                       front_mark=not args.no_front_mark)
         except (CalibrationError, SetupError) as exc:
             return fail(str(exc))
+        if kind == "hsv" and lab is not None:
+            from groundtruth.rgb import colour_detectable
+
+            for r in lab.robots:
+                why = None if getattr(r, "hsv_range", None) or r.name in colours else colour_detectable(r.color_rgb)
+                if why:
+                    print(f"arena groundtruth: warning: robot {r.name} is not detected by colour: {why}; "
+                          "give it an ArUco marker (--detector aruco) or a saturated or dark shell",
+                          file=sys.stderr, flush=True)
         return _run_loop(args, lab, source, detector)
 
 
@@ -385,7 +395,7 @@ def _run_loop(args, lab, source, detector) -> int:
 
     from arena.service import Service, stop_on_signals
     from arena.session import open_session
-    from groundtruth.service import GroundTruthRunner
+    from groundtruth.service import GroundTruthRunner, heading_counts, heading_note
 
     # One OpenCV thread: on 640x480 frames at 24 fps its worker pool mostly busy-waits between
     # calls, 15 -> 12 % of a core for decode + detection, with the same results.
@@ -403,8 +413,8 @@ def _run_loop(args, lab, source, detector) -> int:
             return 2
         stack.callback(runner.close)
         print(f"arena groundtruth: {detector.name} detector on {source.source}"
-              + ("" if session is None else f", publishing arena/groundtruth/* as groundtruth/{args.name}"),
-              flush=True)
+              + ("" if session is None else f", publishing arena/groundtruth/* as groundtruth/{args.name}")
+              + f" ({heading_note(detector)})", flush=True)
         try:
             runner.run(stop, max_frames=args.max_frames, duration_s=args.duration)
         except KeyboardInterrupt:
@@ -412,6 +422,8 @@ def _run_loop(args, lab, source, detector) -> int:
         except OSError as exc:
             print(f"arena groundtruth: {exc}", file=sys.stderr)
             return 2
+        counts = heading_counts(detector)
         print(f"arena groundtruth: {runner.frames} frames, {runner.detections} detections, "
-              f"robots seen: {', '.join(sorted(runner.seen)) or 'none'}", flush=True)
+              f"robots seen: {', '.join(sorted(runner.seen)) or 'none'}" + (f"; {counts}" if counts else ""),
+              flush=True)
     return 0

@@ -330,15 +330,37 @@ def sample_hsv_range(frame: np.ndarray, pixel: tuple[float, float], radius: int 
                     (h_hi, 255, int(min(255, v_hi + margin[2]))))
 
 
+#: Value (V of HSV, 0-255) of the white mats in the light a nominal shell colour is given for:
+#: a white surface a webcam's auto exposure puts at ~86 % of full scale. With
+#: ``HsvDetector(white_v=WHITE_V)`` the V bounds of nominal-colour ranges follow the mats'
+#: measured brightness (dimmed light, a darker exposure), as hue and saturation do not change.
+WHITE_V = 220.0
+
+
+def colour_detectable(rgb: tuple[int, int, int]) -> str | None:
+    """Why a shell of nominal colour ``rgb`` (R, G, B 0-255) cannot be found by colour on the
+    white mats (``None`` when it can): a pale, unsaturated shell (white, light grey) has neither
+    a hue nor a brightness that sets it apart from them."""
+    bgr = np.uint8([[list(rgb)[::-1]]])
+    _, s, v = (int(c) for c in cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)[0, 0])
+    if s < 60 and v > 110:
+        return (f"shell colour {tuple(int(c) for c in rgb)} is too close to the white mats for colour detection "
+                f"(saturation {s}/255, value {v}/255: only saturated colours or dark shells stand out)")
+    return None
+
+
 def hsv_range_from_rgb(rgb: tuple[int, int, int], hue_margin: int = 10) -> HsvRange:
     """A default HSV range for a nominal shell colour (R, G, B 0-255) from the lab config,
-    tolerant to lighting (V down to 30 % of the nominal). Prefer :func:`sample_hsv_range`
-    on a real frame. Raises ``ValueError`` for white/grey shells (indistinct from the mats)."""
+    tolerant to lighting (V down to 30 % of the nominal; with ``HsvDetector(white_v=...)`` the
+    V bounds also follow the mats' brightness). Prefer :func:`sample_hsv_range` on a real
+    frame. Raises ``ValueError`` for white/grey shells (indistinct from the mats, see
+    :func:`colour_detectable`)."""
+    why = colour_detectable(rgb)
+    if why:
+        raise ValueError(why)
     bgr = np.uint8([[list(rgb)[::-1]]])
     h, s, v = (int(c) for c in cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)[0, 0])
     if s < 60:
-        if v > 110:
-            raise ValueError(f"shell colour {rgb} is too close to the white mats for colour detection")
         return HsvRange((0, 0, 0), (179, 255, max(60, int(v * 2.5))))
     return HsvRange(((h - hue_margin) % 180, max(40, s // 2), max(25, int(v * 0.3))),
                     ((h + hue_margin) % 180, 255, 255))
@@ -363,6 +385,17 @@ class HsvDetector:
             left out of the centroid and the outline.
         search_radius_px: a robot found in the previous frame is first searched within this
             many pixels of its last position (the whole frame if it is not found there).
+        white_v: the mats' value (V, 0-255) the ranges were set for (:data:`WHITE_V` for
+            ranges from nominal colours); each frame's V bounds are then scaled by the mats'
+            measured value (the 75th percentile of V over the frame, which the mats fill) over
+            ``white_v``, so a range holds when the light is dimmed. ``None``: fixed bounds.
+        relative: the robots whose ranges follow the mats' value (default all, when
+            ``white_v`` is given); ranges sampled on a frame are usually absolute.
+
+    Headings: :attr:`heading_sources` counts, per detection, what resolved the shell's
+    90-degree ambiguity: ``"front_mark"`` (the dark window strip / front mark seen as a hole
+    in the blob), ``"motion"`` (the direction travelled over ``motion_window_us``, assuming
+    forward driving) or ``"unknown"`` (neither: ``yaw_rad`` is ``nan``).
     """
 
     name = "hsv"
@@ -370,8 +403,16 @@ class HsvDetector:
     def __init__(self, ranges: dict, homography: Homography, shell_size_m=(0.10, 0.10),
                  area_tolerance: float = 2.2, min_solidity: float = 0.55, front_mark: bool = True,
                  motion_min_m: float = 0.02, motion_window_us: int = 300_000, top_ratio: float = 0.75,
-                 search_radius_px: int = 60):
+                 search_radius_px: int = 60, white_v: float | None = None, relative=None):
         self.ranges = {name: HsvRange.parse(r) for name, r in ranges.items()}
+        if white_v is not None and not 0 < white_v <= 255:
+            raise ValueError(f"white_v must be in (0, 255], got {white_v}")
+        self.white_v = None if white_v is None else float(white_v)
+        self.relative = set(self.ranges) if relative is None else set(relative)
+        #: the last frame's V scale (mats' measured value / ``white_v``), 1.0 without ``white_v``
+        self.v_scale = 1.0
+        #: detections per heading source: front_mark, motion, unknown (see the class doc)
+        self.heading_sources = {"front_mark": 0, "motion": 0, "unknown": 0}
         self.homography = homography
         self.shell_area_m2 = float(shell_size_m[0]) * float(shell_size_m[1])
         self.area_tolerance = float(area_tolerance)
@@ -390,8 +431,13 @@ class HsvDetector:
         _check_frame(frame)
         hsv = cv2.cvtColor(frame, cv2.COLOR_BGR2HSV)
         h, w = hsv.shape[:2]
+        if self.white_v is not None:
+            mats_v = float(np.percentile(hsv[::8, ::8, 2], 75))
+            self.v_scale = min(1.3, max(0.05, mats_v / self.white_v))
         out = []
         for robot, rng in self.ranges.items():
+            if self.white_v is not None and robot in self.relative:
+                rng = _scaled_value(rng, self.v_scale)
             det = None
             last = self._last_px.get(robot)
             if last is not None:          # search near the last position first (cheap)
@@ -469,8 +515,13 @@ class HsvDetector:
         blob = np.zeros((h, w), np.uint8)
         cv2.drawContours(blob, [contour - np.array([x0, y0], np.int32)], -1, 255, cv2.FILLED)
         blob &= mask[y0:y0 + h, x0:x0 + w]
-        vals = value[y0:y0 + h, x0:x0 + w]
-        thr = self.top_ratio * float(np.percentile(vals[blob > 0], 90))
+        # the value averaged over each pixel's 3x3 blob neighbours (not the mats around): sensor
+        # noise on a dark or dimly lit shell would otherwise speckle the split between top and sides
+        inside = (blob > 0).astype(np.float32)
+        raw = value[y0:y0 + h, x0:x0 + w].astype(np.float32) * inside
+        vals = cv2.blur(raw, (3, 3), borderType=cv2.BORDER_CONSTANT) / \
+            np.maximum(cv2.blur(inside, (3, 3), borderType=cv2.BORDER_CONSTANT), 1e-6)
+        thr = self.top_ratio * float(np.percentile(vals[blob > 0], 75))
         top = np.where(vals >= thr, blob, 0).astype(np.uint8)
         top = cv2.morphologyEx(top, cv2.MORPH_OPEN, self._kernel)
         cs, _ = cv2.findContours(top, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -494,12 +545,15 @@ class HsvDetector:
         hist.append((t_us, xy[0], xy[1]))
         while hist and hist[0][0] < t_us - self.motion_window_us:
             hist.popleft()
+        source = "front_mark"
         if hint is None and len(hist) >= 2:
             dx, dy = hist[-1][1] - hist[0][1], hist[-1][2] - hist[0][2]
             if math.hypot(dx, dy) >= self.motion_min_m:
-                hint = math.atan2(dy, dx)
+                hint, source = math.atan2(dy, dx), "motion"
         if hint is None:
+            self.heading_sources["unknown"] += 1
             return float("nan")
+        self.heading_sources[source] += 1
         best = min(cands, key=lambda a: abs(_wrap(a - hint)))
         return _wrap(best)
 
@@ -522,6 +576,13 @@ class HsvDetector:
         if math.hypot(dx, dy) < 0.01:     # a hole in the middle is not a front mark
             return None
         return math.atan2(dy, dx)
+
+
+def _scaled_value(rng: HsvRange, k: float) -> HsvRange:
+    """``rng`` with its V bounds scaled by ``k`` (an open top, V >= 250, stays open)."""
+    lo_v = int(round(rng.lo[2] * k))
+    hi_v = rng.hi[2] if rng.hi[2] >= 250 else min(255, max(lo_v, int(round(rng.hi[2] * k))))
+    return HsvRange((rng.lo[0], rng.lo[1], lo_v), (rng.hi[0], rng.hi[1], hi_v))
 
 
 # ---------------------------------------------------------------------------- markers

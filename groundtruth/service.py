@@ -30,7 +30,7 @@ import numpy as np
 from arena.keys import groundtruth_key
 from arena.messages import GroundTruthPose
 from groundtruth.homography import CalibrationError, Homography, homography_from_calibration
-from groundtruth.rgb import (Detection, DetectionWriter, FrameSource, HsvDetector, HsvRange,
+from groundtruth.rgb import (WHITE_V, Detection, DetectionWriter, FrameSource, HsvDetector, HsvRange,
                              MarkerDetector, annotate, hsv_range_from_rgb)
 
 log = logging.getLogger("groundtruth.service")
@@ -74,7 +74,11 @@ def build_detector(kind: str, homography: Homography, robots=(), markers: dict[i
         front_mark: the HSV detector looks for the shells' front marks.
 
     With no marker ids known the ArUco detector reports every marker as ``marker<id>``.
-    Raises :class:`SetupError` when the HSV detector has no robot colour to look for.
+    Ranges made from a nominal colour (RGB) follow the mats' brightness (``white_v``, see
+    :class:`~groundtruth.rgb.HsvDetector`); explicit HSV ranges are used as given.
+    Raises :class:`SetupError` when the HSV detector has no robot colour to look for, or a
+    colour given in ``colours`` cannot be told from the white mats (a config robot with such
+    a colour is skipped with a warning).
     """
     robots = list(robots)
     if kind == "aruco":
@@ -84,20 +88,24 @@ def build_detector(kind: str, homography: Homography, robots=(), markers: dict[i
     if kind != "hsv":
         raise SetupError(f"unknown detector {kind!r}: use aruco or hsv")
     ranges: dict[str, HsvRange] = {}
+    nominal: set[str] = set()
     for r in robots:
         try:
             if getattr(r, "hsv_range", None):
                 ranges[r.name] = HsvRange.parse(r.hsv_range)
             else:
                 ranges[r.name] = hsv_range_from_rgb(tuple(r.color_rgb))
+                nominal.add(r.name)
         except ValueError as e:
             log.warning("robot %s skipped by the colour detector: %s", r.name, e)
     for name, c in (colours or {}).items():
         try:
             if isinstance(c, (list, tuple)) and len(c) == 3 and all(isinstance(v, int) for v in c):
                 ranges[name] = hsv_range_from_rgb(tuple(c))
+                nominal.add(name)
             else:
                 ranges[name] = HsvRange.parse(c)
+                nominal.discard(name)
         except ValueError as e:
             raise SetupError(f"robot {name}: {e}") from None
     if not ranges:
@@ -105,7 +113,26 @@ def build_detector(kind: str, homography: Homography, robots=(), markers: dict[i
     size = (0.10, 0.10)
     if robots:
         size = (float(robots[0].length_m), float(robots[0].width_m))
-    return HsvDetector(ranges, homography, shell_size_m=size, front_mark=front_mark)
+    return HsvDetector(ranges, homography, shell_size_m=size, front_mark=front_mark,
+                       white_v=WHITE_V if nominal else None, relative=nominal)
+
+
+def heading_note(detector) -> str:
+    """How ``detector`` resolves headings, for the service's start line and docs."""
+    if isinstance(detector, HsvDetector):
+        how = "the dark front mark (window strip) on the shell, else the direction of motion" \
+            if detector.front_mark else "the direction of motion (no front mark)"
+        return f"colour blobs; heading modulo 90 deg from the shell outline, resolved by {how}"
+    return "ArUco markers; heading from each marker's orientation"
+
+
+def heading_counts(detector) -> str | None:
+    """``headings: N from the front mark, M from motion, K unknown`` of an HSV detector so far."""
+    c = getattr(detector, "heading_sources", None)
+    if not c:
+        return None
+    return (f"headings: {c['front_mark']} from the front mark, {c['motion']} from motion, "
+            f"{c['unknown']} unknown")
 
 
 def marker_calibration(frames, at: dict[int, tuple[float, float]], height_m: float,

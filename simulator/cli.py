@@ -34,6 +34,7 @@ LIGHTING_CHOICES = ("full", "dimmed", "dark")
 EXAMPLES = """\
 Examples:
   arena sim --robots 4                         # 4 robots, camera on tcp://127.0.0.1:9000
+  arena sim --robots 4 --markers               # the same with ArUco markers on the shells
   arena sim --robots 2 --autopilot circle --power 0.5 --duration 20 \\
             --record-raw run.raw --truth-csv run.truth.csv
   arena sim --robots 8 --camera-port 0 --webcam-port 0 --robot-base-port 0   # free ports
@@ -42,7 +43,9 @@ Examples:
   arena sim --robots 4 --autopilot square --publish-truth -e tcp/127.0.0.1:7447   # truth on Zenoh
 Then point the services at the printed addresses, e.g.
   arena edge tcp://127.0.0.1:9000 --camera cam0                                  # camera
-  arena groundtruth --video http://127.0.0.1:8090/stream.mjpg --calibration http://127.0.0.1:8090/calibration.json
+  arena groundtruth --video http://127.0.0.1:8090/stream.mjpg --calibration http://127.0.0.1:8090/calibration.json \\
+      --clock stream --detector hsv --robot black0=black --robot yellow1=yellow ...   # by colour
+      (with --markers: --detector aruco --marker 0=black0 --marker 1=yellow1 ...)
   arena bridge run --robot black0=socket://127.0.0.1:9100                        # robot 0
 (or cv2.VideoCapture("http://127.0.0.1:8090/stream.mjpg"), serial.serial_for_url("socket://127.0.0.1:9100"))"""
 
@@ -77,6 +80,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flicker", type=float, default=0.0, metavar="HZ",
                    help="light flicker (100 or 120 Hz); simulates the full frame, not real time")
     p.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")
+    p.add_argument("--markers", action="store_true",
+                   help="print ArUco markers (DICT_4X4_50, ids 0..N-1) on the shells (default: plain "
+                        "coloured shells with a dark front window, as the lab's robots; a lab config's "
+                        "marker_id values are kept either way)")
     p.add_argument("--width", type=int, default=None, help="event sensor width, px (default 640)")
     p.add_argument("--height", type=int, default=None, help="event sensor height, px (default 480)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback)")
@@ -138,10 +145,14 @@ def _robots_from_args(args) -> tuple[list, dict]:
                 if u.scheme == "socket" and u.port:
                     opts["robot_ports"][i] = u.port
             else:
-                specs.append(Scenario(n_robots=n, pattern=pattern).robot_specs()[i])
+                specs.append(Scenario(n_robots=n, pattern=pattern, markers=args.markers).robot_specs()[i])
+        if args.markers:   # robots the lab gave no marker get the lowest free ids
+            free = (i for i in range(50) if i not in {s.marker_id for s in specs})
+            specs = [s if s.marker_id is not None else dataclasses.replace(s, marker_id=next(free, None))
+                     for s in specs]
         return specs, opts
     n = 4 if args.robots is None else args.robots
-    return Scenario(n_robots=n, pattern=pattern, seed=args.seed).robot_specs(), opts
+    return Scenario(n_robots=n, pattern=pattern, seed=args.seed, markers=args.markers).robot_specs(), opts
 
 
 def layout_poses(layout: str, n: int, arena_m: float) -> list[tuple[float, float, float]]:
