@@ -5,11 +5,15 @@ and sets motor powers, so scenarios run without the robot bridge. Paths are in t
 frame (m); each robot gets its own cell of the arena so paths do not collide, except in
 ``"cross"`` where three robots drive straight lines through the arena centre.
 
-Patterns: ``circle`` (radius ~0.3 m, counter-clockwise), ``square`` (side ~0.6 m, stop and
-zero-point turn at each corner), ``stopgo`` (circles; robots 0 and 1 stop for 2 s in the
+Patterns: ``circle`` (radius ~0.3 m, counter-clockwise), ``square`` (side ~0.6 m, stop,
+pause, zero-point turn, pause, go at each corner), ``stopgo`` (circles; robots 0 and 1 stop for 2 s in the
 middle of the run), ``cross`` (3 robots back and forth on lines crossing at the centre,
 zero-point turns at the ends; extra robots circle in the corners), ``figure8``
 (a lemniscate ~0.6 x 0.3 m) and ``still`` (nobody moves).
+
+Like a human operator (or a mission's phase sequencer), the driver stands still for a short,
+seeded-random pause (:attr:`Autopilot.PAUSE_S`, 0.2-0.4 s) before and after every zero-point
+turn (``pauses=False``: it turns as soon as it arrives and drives on as soon as it faces).
 """
 
 from __future__ import annotations
@@ -123,14 +127,24 @@ def make_plans(pattern: str, n: int, arena_m: float = 1.83, duration_s: float = 
 class Autopilot:
     """Drives every robot of ``world`` along its :class:`Plan` at ``power`` (fraction of full
     motor power, e.g. 0.5 or 1.0) with pure pursuit on the true pose; corners of plans with
-    ``point_turns`` are zero-point turns. Call :meth:`update` with the simulated time (s);
-    it acts every :data:`CONTROL_PERIOD_S`."""
+    ``point_turns`` are zero-point turns, with a pause (:attr:`PAUSE_S`, seeded jitter) before
+    and after each unless ``pauses`` is False. Call :meth:`update` with the simulated time (s);
+    it acts every :data:`CONTROL_PERIOD_S`.
+
+    Args:
+        world, plans, power: what to drive, where, how fast.
+        pauses: stand still before and after every zero-point turn.
+        seed: seed of the pause lengths (None: ``world.seed``).
+    """
 
     LOOKAHEAD_M = 0.08
     ARRIVE_M = 0.012
     TURN_TOL_RAD = math.radians(3.0)
+    #: Range of the pause before and after a zero-point turn, s (uniform, seeded).
+    PAUSE_S = (0.2, 0.4)
 
-    def __init__(self, world: World, plans: list[Plan], power: float = 1.0):
+    def __init__(self, world: World, plans: list[Plan], power: float = 1.0, pauses: bool = True,
+                 seed: int | None = None):
         if not 0.05 <= power <= 1.0:
             raise ValueError(f"power must be a fraction in [0.05, 1], got {power}")
         if len(plans) != len(world.robots):
@@ -138,12 +152,22 @@ class Autopilot:
         self.world = world
         self.plans = plans
         self.power = float(power)
+        self.pauses = bool(pauses)
+        self._rng = np.random.default_rng([int(world.seed if seed is None else seed), 2])
         self._next_t = 0.0
-        # per robot: target vertex index, mode ("drive"|"turn"), direction along open routes
+        # per robot: target vertex index, mode ("drive"|"turn"|"pause"), direction along open
+        # routes; while pausing: until when (s) and the mode that follows
         self._target = [1 % max(len(p.points), 1) for p in plans]
         self._mode = ["drive"] * len(plans)
+        self._pause_until = [0.0] * len(plans)
+        self._after_pause = ["drive"] * len(plans)
         self._dir = [1] * len(plans)
         self._seg_i = [0] * len(plans)   # smooth paths: index of the nearest vertex
+        # steering: effective track width (m) that maps a path curvature to a tread-speed
+        # ratio, learnt from how the robot actually curves (as a driver gets the feel of a
+        # robot whose treads scrub); and the last pose and command it is learnt from
+        self._w_eff = [r.track_width_m * 1.25 for r in world.robots]
+        self._last: list[tuple | None] = [None] * len(plans)
 
     def update(self, t: float) -> None:
         """Set motor powers for time ``t`` (s) if a control period has elapsed."""
@@ -151,8 +175,30 @@ class Autopilot:
             return
         self._next_t = t + CONTROL_PERIOD_S
         for i, plan in enumerate(self.plans):
+            self._learn_width(i)
             left, right = self._command(i, plan, t)
             self.world.set_power(i, int(round(left)), int(round(right)))
+            self._last[i] = (self.world.pose(i), self.world.power(i))
+
+    def _learn_width(self, i: int) -> None:
+        """Update the steering width of robot ``i`` from the curve it drove since the last
+        command: on an arc (both treads forward, a clear speed ratio) the width that explains
+        the observed curvature is ``2 * ratio * distance / yaw change``."""
+        if self._last[i] is None:
+            return
+        (x0, y0, a0), (left, right) = self._last[i]
+        x, y, a = self.world.pose(i)
+        ds = math.hypot(x - x0, y - y0)
+        dyaw = _wrap(a - a0)
+        if left <= 0 or right <= 0 or ds < 1e-3:
+            return
+        ratio = (right - left) / (right + left)
+        if abs(ratio) < 0.05 or ratio * dyaw <= 0 or abs(dyaw) < math.radians(0.2):
+            return
+        w_obs = 2.0 * ratio * ds / dyaw
+        track = self.world.robots[i].track_width_m
+        w = self._w_eff[i] + 0.1 * (w_obs - self._w_eff[i])
+        self._w_eff[i] = min(max(w, track), 8.0 * track)
 
     # ------------------------------------------------------------------ internals
     def _command(self, i: int, plan: Plan, t: float) -> tuple[float, float]:
@@ -163,12 +209,12 @@ class Autopilot:
         x, y, yaw = self.world.pose(i)
         p = self.power * MAX_POWER
         if plan.point_turns:
-            return self._corner_route(i, plan, x, y, yaw, p)
+            return self._corner_route(i, plan, x, y, yaw, p, t)
         return self._pursuit(i, plan, x, y, yaw, p)
 
     def _steer(self, i: int, alpha: float, dist: float, p: float) -> tuple[float, float]:
         kappa = 2.0 * math.sin(alpha) / max(dist, 1e-3)
-        w = self.world.robots[i].track_width_m * 1.25
+        w = self._w_eff[i]
         left, right = 1.0 - kappa * w / 2, 1.0 + kappa * w / 2
         scale = p / max(abs(left), abs(right), 1e-9)
         return left * scale, right * scale
@@ -188,19 +234,33 @@ class Autopilot:
         alpha = _wrap(math.atan2(ty - y, tx - x) - yaw)
         return self._steer(i, alpha, math.hypot(tx - x, ty - y), p)
 
-    def _corner_route(self, i: int, plan: Plan, x: float, y: float, yaw: float, p: float):
+    def _switch(self, i: int, mode: str, t: float) -> None:
+        """Go to ``mode``, through a seeded pause when pausing is on (turns start and end so)."""
+        if self.pauses:
+            self._mode[i] = "pause"
+            self._after_pause[i] = mode
+            self._pause_until[i] = t + float(self._rng.uniform(*self.PAUSE_S))
+        else:
+            self._mode[i] = mode
+
+    def _corner_route(self, i: int, plan: Plan, x: float, y: float, yaw: float, p: float,
+                      t: float = 0.0):
         pts = plan.points
         tgt = pts[self._target[i]]
         dx, dy = tgt[0] - x, tgt[1] - y
         dist = math.hypot(dx, dy)
+        if self._mode[i] == "pause":
+            if t + 1e-9 < self._pause_until[i]:
+                return 0.0, 0.0
+            self._mode[i] = self._after_pause[i]
         if self._mode[i] == "drive":
             # arrived (or passed the corner along the segment direction)?
             if dist < self.ARRIVE_M or (dist < 0.05 and math.cos(math.atan2(dy, dx) - yaw) < 0):
                 self._advance_target(i, plan)
-                self._mode[i] = "turn"
+                self._switch(i, "turn", t)
                 return 0.0, 0.0
             if abs(_wrap(math.atan2(dy, dx) - yaw)) > math.radians(30):
-                self._mode[i] = "turn"
+                self._switch(i, "turn", t)
                 return 0.0, 0.0
             # pure pursuit on the segment: look ahead of our projection onto it
             a = pts[self._previous(i, plan)]
@@ -215,7 +275,7 @@ class Autopilot:
         # zero-point turn towards the next target
         err = _wrap(math.atan2(dy, dx) - yaw)
         if abs(err) < self.TURN_TOL_RAD:
-            self._mode[i] = "drive"
+            self._switch(i, "drive", t)
             return 0.0, 0.0
         mag = p * min(1.0, 0.35 + abs(err) / math.radians(45))
         mag = max(mag, 90.0)

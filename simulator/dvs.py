@@ -13,8 +13,12 @@ Per pixel (after v2e, Hu et al. 2021, and ESIM, Rebecq et al. 2018):
   interpolated linearly inside the internal time step (µs); the memory advances by one
   threshold per crossing, and crossings within the refractory period after the pixel's
   last event are lost (the pixel is held in reset, as in v2e);
-* background activity: Poisson events at ``noise_rate_hz`` per pixel with uniform times
-  over the whole sensor, plus a few hot pixels firing at ``hot_rate_hz``; labelled noise.
+* the light reaching a pixel falls off towards the sensor's corners: lens vignetting
+  (``cos^n`` off the optical axis) times the ceiling lamps' fall-off over the mats;
+* background activity: Poisson events at ``noise_rate_hz`` per pixel on average with uniform
+  times over the whole sensor, more in dark pixels (shot noise), leak events (ON, at a rate
+  proportional to the pixel's light), plus a few hot pixels firing at ``hot_rate_hz``;
+  labelled noise. These are drawn statistically, not through the pixel memories.
 
 Performance: only pixels near robots change, so the model runs only inside regions of
 interest (the dilated union of each robot's footprint over the last few photoreceptor time
@@ -23,7 +27,9 @@ constants); the memory of every other pixel stays as it is. Inside them a pixel 
 it. The ROI model gives the events of the full-frame model (tested). With ``flicker_hz > 0`` the
 whole sensor changes and the whole frame is simulated (slow; not real time).
 
-Robots are seen at their shell-top height (parallax, see :class:`simulator.camera.CeilingCamera`).
+Robots are ray-traced per pixel as stacked boxes (blade, treads, shell; see
+:func:`simulator.camera.robot_body`) through the pinhole camera: parallax and self-occlusion
+come out of the geometry (see :func:`_reflectance`).
 Sensor frame: x = column u, y = row v, px; timestamps in µs of the sensor clock.
 """
 
@@ -40,7 +46,7 @@ from simulator.camera import ILLUMINATION, CeilingCamera, robot_appearance
 from simulator.world import RobotSpec
 
 #: Default background-activity rate per pixel by lighting level, Hz (more in the dark).
-NOISE_RATE_HZ = {"full": 0.1, "dimmed": 0.3, "dark": 1.0}
+NOISE_RATE_HZ = {"full": 0.5, "dimmed": 1.0, "dark": 2.0}
 
 
 @dataclass
@@ -54,24 +60,39 @@ class DvsParams:
         cutoff_hz: photoreceptor 3 dB cutoff at irradiance 1 (white under full light), Hz.
         min_cutoff_hz: floor of the photoreceptor cutoff, Hz.
         dark_current: irradiance-equivalent dark current (relative), limits dark contrast.
-        noise_rate_hz: background activity per pixel, Hz; None = by lighting (full 0.1,
-            dimmed 0.3, dark 1.0).
+        noise_rate_hz: background activity (shot noise and junction leakage) per pixel
+            averaged over the sensor, Hz; None = by lighting (full 0.5, dimmed 1.0, dark 2.0).
         noise_on_fraction: fraction of background events that are ON.
+        shot_noise: spread the background activity by brightness: a pixel's rate scales as
+            ``(I_mat / I_pixel) ** 0.5`` (clipped to 0.25..4x; darker pixels, e.g. the floor
+            around the mats or the vignetted corners, fire more), keeping the mean; False =
+            the same rate everywhere.
+        leak_rate_hz: leak events (ON, from the reset switch's parasitic photocurrent) per
+            pixel at full light on the optical axis, Hz; scales with the pixel's light
+            (lighting level x vignetting and lamp fall-off); 0 = off.
+        vignetting: exponent n of the lens's relative illumination ``cos(theta) ** n`` (theta
+            off the optical axis; 4 = ideal lens, real lenses 2-4); 0 = off.
+        lamp_falloff: fraction by which the ceiling lights are dimmer at the mat corners than
+            at the arena centre (quadratic in the distance); 0 = off.
         hot_pixels: number of hot pixels; hot_rate_hz: their event rate, Hz.
         step_us: internal time step, µs (<= 1000, i.e. >= 1 kHz).
         flicker_hz: ceiling light flicker (0 = off, 100 or 120 typical), Hz.
         flicker_depth: relative modulation depth of the flicker.
     """
 
-    threshold_on: float = 0.2
-    threshold_off: float = 0.2
+    threshold_on: float = 0.25
+    threshold_off: float = 0.25
     threshold_sigma: float = 0.03
-    refractory_us: int = 200
+    refractory_us: int = 500
     cutoff_hz: float = 400.0
     min_cutoff_hz: float = 5.0
     dark_current: float = 0.003
     noise_rate_hz: float | None = None
     noise_on_fraction: float = 0.5
+    shot_noise: bool = True
+    leak_rate_hz: float = 0.15
+    vignetting: float = 2.0
+    lamp_falloff: float = 0.10
     hot_pixels: int = 5
     hot_rate_hz: float = 50.0
     step_us: int = 1000
@@ -87,6 +108,9 @@ class DvsParams:
             (self.cutoff_hz > 0 and self.min_cutoff_hz > 0, "cutoff frequencies must be > 0"),
             (self.noise_rate_hz is None or self.noise_rate_hz >= 0, "noise_rate_hz must be >= 0"),
             (0.0 <= self.noise_on_fraction <= 1.0, "noise_on_fraction must be in [0, 1]"),
+            (self.leak_rate_hz >= 0, "leak_rate_hz must be >= 0"),
+            (0 <= self.vignetting <= 8, "vignetting (cos exponent) must be in [0, 8]"),
+            (0 <= self.lamp_falloff < 0.8, "lamp_falloff must be in [0, 0.8)"),
             (self.hot_pixels >= 0 and self.hot_rate_hz >= 0, "hot pixel count/rate must be >= 0"),
             (1 <= self.step_us <= 1000, "step_us must be in 1..1000 (internal rate >= 1 kHz)"),
             (self.flicker_hz >= 0 and 0 <= self.flicker_depth < 1, "flicker must be >= 0 Hz, depth in [0, 1)"),
@@ -96,9 +120,31 @@ class DvsParams:
                 raise ValueError(f"DvsParams: {msg}")
 
 
+@njit(cache=True, inline="always")
+def _clamp01(x):
+    return min(max(x, 0.0), 1.0)
+
+
 @njit(cache=True, inline="always", error_model="numpy")
-def _reflectance(u, v, ax, ay, bg, state, app, markers, members, n_members, pix_m):
-    """Reflectance seen by pixel (u, v): background with the robots of ``members`` on top."""
+def _cover(x, y, x0, x1, y0, y1, pix):
+    """Area fraction of a pixel (side ``pix``, centred at x, y) inside the rectangle."""
+    return (_clamp01(min(x - x0, x1 - x) / pix + 0.5)
+            * _clamp01(min(y - y0, y1 - y) / pix + 0.5))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_members, pix_m,
+                 inv_h, flat, scr):
+    """Reflectance seen by pixel (u, v): background with the robots of ``members`` on top.
+
+    Per robot, the pixel's ray (from the lens through the point ``(ax, ay)`` where it meets
+    the mats; in the robot frame it moves by ``(nadir - point) / camera_height`` per metre
+    of height) is intersected with the body's boxes: each box covers the pixel where the
+    ray passes through it, seen on its top face or (3-D body) on a wall; boxes are composited
+    front to back by the height where the ray enters them (the highest surface hit is seen),
+    with area-weighted coverage at their silhouettes (no aliasing). What lies below is
+    darkened by the contact shadow.
+    """
     x = ax[v, u]
     y = ay[v, u]
     refl = bg[v, u]
@@ -110,25 +156,121 @@ def _reflectance(u, v, ax, ay, bg, state, app, markers, members, n_members, pix_
         s = state[i, 3]
         bx = c * dx + s * dy
         by = -s * dx + c * dy
-        hl = app[i, 0]
-        hw = app[i, 1]
-        cx = (hl - abs(bx)) / pix_m + 0.5
-        if cx <= 0.0:
+        hl = rp[i, 0]
+        hw = rp[i, 1]
+        reach = state[i, 6]
+        if abs(bx) > hl + reach or abs(by) > hw + reach:
             continue
-        cy = (hw - abs(by)) / pix_m + 0.5
-        if cy <= 0.0:
-            continue
-        cov = min(cx, 1.0) * min(cy, 1.0)
-        mh = app[i, 5]
-        if abs(by) > hw - app[i, 4]:
-            inner = app[i, 3]
-        elif mh > 0.0 and abs(bx) < mh and abs(by) < mh:
-            row = min(int((mh - bx) / (2.0 * mh) * 6.0), 5)
-            col = min(int((mh - by) / (2.0 * mh) * 6.0), 5)
-            inner = markers[i, row, col]
-        else:
-            inner = app[i, 2]
-        refl = refl * (1.0 - cov) + inner * cov
+        rx = (state[i, 4] - bx) * inv_h
+        ry = (state[i, 5] - by) * inv_h
+        sw = rp[i, 8]
+        if sw > 0.0:        # contact shadow on the mat (and whatever else lies below)
+            ox = max(abs(bx) - hl, 0.0)
+            oy = max(abs(by) - hw, 0.0)
+            d = math.sqrt(ox * ox + oy * oy)
+            if d < sw:
+                q = 1.0 - d / sw
+                refl *= 1.0 - rp[i, 7] * q * q
+        nb = int(rp[i, 11])
+        k = 0
+        for q in range(nb):
+            x0 = bodies[i, q, 0]
+            x1 = bodies[i, q, 1]
+            y0 = bodies[i, q, 2]
+            y1 = bodies[i, q, 3]
+            zt = bodies[i, q, 4]
+            tx = bx + rx * zt       # the ray at the box's top
+            ty = by + ry * zt
+            hp = 0.5 * pix_m
+            if ((tx < x0 - hp and bx < x0 - hp) or (tx > x1 + hp and bx > x1 + hp)
+                    or (ty < y0 - hp and by < y0 - hp) or (ty > y1 + hp and by > y1 + hp)):
+                continue        # the ray passes beside the box from its top to the mats
+            ct = _cover(tx, ty, x0, x1, y0, y1, pix_m)
+            if flat:
+                alpha = ct
+                ze = zt
+            else:
+                cf = _cover(bx, by, x0, x1, y0, y1, pix_m)      # at the foot
+                alpha = max(ct, cf)
+                ze = zt if ct >= cf else 0.0
+                if alpha < 1.0:
+                    # between top and foot (a wall's corner): where the x and y margins meet
+                    zm = 0.5 * zt
+                    xm = bx + rx * zm
+                    ym = by + ry * zm
+                    if xm - x0 < x1 - xm:
+                        mx0, mx1 = bx - x0, rx
+                    else:
+                        mx0, mx1 = x1 - bx, -rx
+                    if ym - y0 < y1 - ym:
+                        my0, my1 = by - y0, ry
+                    else:
+                        my0, my1 = y1 - by, -ry
+                    den = mx1 - my1
+                    if den != 0.0:
+                        zc = min(max((my0 - mx0) / den, 0.0), zt)
+                        cc = _cover(bx + rx * zc, by + ry * zc, x0, x1, y0, y1, pix_m)
+                        if cc > alpha:
+                            alpha = cc
+                            ze = zc
+                # where the centre ray enters the box (slabs): its height orders the boxes
+                lo = 0.0
+                hi = zt
+                if rx != 0.0:
+                    za = (x0 - bx) / rx
+                    zb = (x1 - bx) / rx
+                    lo = max(lo, min(za, zb))
+                    hi = min(hi, max(za, zb))
+                elif bx < x0 or bx > x1:
+                    hi = -1.0
+                if ry != 0.0:
+                    za = (y0 - by) / ry
+                    zb = (y1 - by) / ry
+                    lo = max(lo, min(za, zb))
+                    hi = min(hi, max(za, zb))
+                elif by < y0 or by > y1:
+                    hi = -1.0
+                if lo <= hi:
+                    ze = hi
+            if alpha <= 0.0:
+                continue
+            top = bodies[i, q, 5]
+            if q == 0 and ct > 0.0:     # the shell top: rim, front sensor window, marker
+                mh = rp[i, 6]
+                if mh > 0.0 and abs(tx) < mh and abs(ty) < mh:
+                    row = min(int((mh - tx) / (2.0 * mh) * 6.0), 5)
+                    col = min(int((mh - ty) / (2.0 * mh) * 6.0), 5)
+                    top = markers[i, row, col]
+                else:
+                    rim = rp[i, 5]
+                    if rim > 0.0:
+                        e = min(tx - x0, min(y1 - ty, ty - y0))
+                        top += (rp[i, 9] - top) * _clamp01((rim - e) / pix_m + 0.5)
+                    win = rp[i, 4]
+                    if win > 0.0:
+                        top += (rp[i, 10] - top) * _clamp01((tx - (x1 - win)) / pix_m + 0.5)
+            wall = bodies[i, q, 6]
+            if alpha > ct and bodies[i, q, 7] != wall and bx + rx * ze > x1 - 5e-4:
+                wall = bodies[i, q, 7]      # the front wall
+            # insert by entry height, highest first
+            p = k
+            while p > 0 and scr[p - 1, 0] < ze:
+                scr[p, 0] = scr[p - 1, 0]
+                scr[p, 1] = scr[p - 1, 1]
+                scr[p, 2] = scr[p - 1, 2]
+                p -= 1
+            scr[p, 0] = ze
+            scr[p, 1] = alpha
+            scr[p, 2] = ct * top + (alpha - ct) * wall
+            k += 1
+            if ct >= 1.0:
+                break       # its top covers the pixel, and the boxes below are no higher
+        acc = 0.0
+        trans = 1.0
+        for p in range(k):
+            acc += trans * scr[p, 2]
+            trans *= 1.0 - scr[p, 1]
+        refl = acc + trans * refl
     return refl
 
 
@@ -175,7 +317,8 @@ def _merge_boxes(boxes, owner):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
-               hom, nadir_x, nadir_y, top_scale, ax, ay, bg, bg_log, app, markers, pix_m, illum_seq, dark, cutoff_hz,
+               hom, nadir_x, nadir_y, cam_h, flat, gain, ax, ay, bg, bg_log, rp, bodies, markers,
+               pix_m, illum_seq, dark, cutoff_hz,
                min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,
                init, ox, oy, op, ot, last_refl, last_target, last_alpha, bg_alpha, std_dt_us,
                settled, prev_pose):
@@ -191,7 +334,9 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     K = hist.shape[1]
     cap = ox.shape[0]
     n = np.int64(0)     # not a literal 0: numba would compile _sort_segment once per literal
-    state = np.zeros((max(n_rob, 1), 4))
+    state = np.zeros((max(n_rob, 1), 7))
+    scr = np.zeros((8, 3))
+    inv_h = 1.0 / cam_h
     tight = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
     moved = np.zeros(max(n_rob, 1), dtype=np.bool_)
     boxes = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
@@ -213,19 +358,27 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
             state[r, 1] = poses[s, r, 1]
             state[r, 2] = math.cos(poses[s, r, 2])
             state[r, 3] = math.sin(poses[s, r, 2])
-            # tight pixel box of the footprint (its 4 corners through the homography) + 2 px
+            # the lens's nadir in the robot frame, and how far beyond its footprint a robot
+            # can change a pixel: contact shadow, parallax of its top, a pixel
+            ex = nadir_x - state[r, 0]
+            ey = nadir_y - state[r, 1]
+            state[r, 4] = state[r, 2] * ex + state[r, 3] * ey
+            state[r, 5] = -state[r, 3] * ex + state[r, 2] * ey
+            zt = rp[r, 2]
+            reach = (rp[r, 8] + zt / (cam_h - zt) * (math.hypot(ex, ey) + math.hypot(rp[r, 0], rp[r, 1]))
+                     + pix_m)
+            state[r, 6] = reach
+            # tight pixel box of that reach (its 4 corners through the homography) + 2 px
             tight[r, 0] = width
             tight[r, 1] = height
             tight[r, 2] = -1
             tight[r, 3] = -1
             for cx_ in (-1.0, 1.0):
                 for cy_ in (-1.0, 1.0):
-                    bx = cx_ * app[r, 0]
-                    by = cy_ * app[r, 1]
+                    bx = cx_ * (rp[r, 0] + reach)
+                    by = cy_ * (rp[r, 1] + reach)
                     xa = state[r, 0] + state[r, 2] * bx - state[r, 3] * by
                     ya = state[r, 1] + state[r, 3] * bx + state[r, 2] * by
-                    xa = nadir_x + (xa - nadir_x) / top_scale     # seen at shell-top height
-                    ya = nadir_y + (ya - nadir_y) / top_scale
                     w_ = hom[2, 0] * xa + hom[2, 1] * ya + hom[2, 2]
                     pu = (hom[0, 0] * xa + hom[0, 1] * ya + hom[0, 2]) / w_
                     pv = (hom[1, 0] * xa + hom[1, 1] * ya + hom[1, 2]) / w_
@@ -296,10 +449,11 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                     if static_light and not near_moving and settled[v, u] and not init:
                         continue            # nothing changes here: skip the pixel
                     if near:
-                        refl = _reflectance(u, v, ax, ay, bg, state, app, markers, mem, nm, pix_m)
+                        refl = _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, mem, nm,
+                                            pix_m, inv_h, flat, scr)
                     else:
                         refl = bg[v, u]
-                    irr = illum * refl
+                    irr = illum * gain[v, u] * refl
                     if static_light and refl == bg[v, u]:
                         target = bg_log[v, u]
                         a = bg_alpha[v, u] if std_dt else -1.0
@@ -469,22 +623,48 @@ class DvsSensor:
         #: hot pixel addresses (k, 2): u, v
         self.hot_pixels = np.column_stack([hot % w, hot // w]).astype(np.int64)
         self._n = len(robots)
-        app, markers = robot_appearance(robots)
-        self._app = app if self._n else np.zeros((1, 6))
-        self._markers = markers if self._n else np.ones((1, 6, 6), np.float32)
+        rp, bodies, markers = robot_appearance(robots, camera.body, camera.shadow,
+                                               camera.shell_height_m)
+        self._rp, self._bodies, self._markers = rp, bodies, markers
         self._illum0 = ILLUMINATION[lighting]
-        self._bg_log = np.log(self._illum0 * camera.background + p.dark_current).astype(np.float32)
+        #: per-pixel light gain: lens vignetting x lamp fall-off (1 on the axis at the centre)
+        self.gain = camera.relative_irradiance(p.vignetting, p.lamp_falloff)
+        irr_bg = self._illum0 * self.gain * camera.background
+        self._bg_log = np.log(irr_bg + p.dark_current).astype(np.float32)
         # photoreceptor low-pass factor of background pixels for one step of step_us
-        f_bg = np.maximum(p.cutoff_hz * (self._illum0 * camera.background + p.dark_current),
-                          p.min_cutoff_hz)
+        f_bg = np.maximum(p.cutoff_hz * (irr_bg + p.dark_current), p.min_cutoff_hz)
         self._bg_alpha = 1.0 - np.exp(-2.0 * np.pi * f_bg * p.step_us * 1e-6)
-        # ROI: footprint radius in px, and how long a pixel stays simulated after a robot left
-        # (4 photoreceptor time constants of the darkest part of a robot, at most 150 ms)
-        self._radius_px = np.hypot(app[:, 0], app[:, 1]) / camera.pixel_m * 1.1 + 3.0
+        # ROI: how far (px) from its floor centre a robot can change a pixel (footprint,
+        # contact shadow, parallax of its top anywhere on the sensor), and how long a pixel
+        # stays simulated after a robot left (4 photoreceptor time constants of the darkest
+        # part of a robot, at most 150 ms)
+        self._reach_const = rp[:, 8] + camera.pixel_m       # shadow reach + a pixel, m
+        self._parallax = rp[:, 2] / (camera.camera_height_m - rp[:, 2])   # top shift / distance
+        self._diag = np.hypot(rp[:, 0], rp[:, 1])
+        L = camera.arena_m
+        on_mats = (camera.ax >= 0) & (camera.ax <= L) & (camera.ay >= 0) & (camera.ay <= L)
+        gain_min = float(self.gain[on_mats].min()) if on_mats.any() else float(self.gain.min())
+        darkest = float(bodies[:, :, 5][bodies[:, :, 4] > 0].min()) if self._n else 0.04
         tau_max = 1.0 / (2 * math.pi * max(p.min_cutoff_hz, p.cutoff_hz * (
-            self._illum0 * 0.04 + p.dark_current)))
+            self._illum0 * gain_min * darkest + p.dark_current)))
         self.keep_s = min(0.15, max(0.02, 4.0 * tau_max))
         self._keep_steps = max(1, int(math.ceil(self.keep_s * 1e6 / p.step_us)))
+        # statistical background: per-pixel rates of background activity (spread by
+        # brightness when shot_noise) and of leak events (ON, proportional to the light)
+        from simulator.camera import MAT_REFLECTANCE
+        if p.shot_noise:
+            w_ba = np.clip(np.sqrt(MAT_REFLECTANCE / np.maximum(self.gain * camera.background, 1e-6)),
+                           0.25, 4.0)
+            w_ba = w_ba / w_ba.mean()
+        else:
+            w_ba = np.ones((h, w))
+        ba = self.noise_rate_hz * w_ba
+        leak = p.leak_rate_hz * self._illum0 * self.gain.astype(np.float64)
+        total = ba + leak
+        #: mean background + leak event rate of the whole sensor, Hz
+        self.background_rate_hz = float(total.sum())
+        self._noise_cdf = np.cumsum(total.ravel())
+        self._noise_p_on = (p.noise_on_fraction * ba + leak).ravel() / np.maximum(total.ravel(), 1e-300)
         self._hist = np.zeros((self._n, self._keep_steps, 4), dtype=np.int64)
         self._hist_i = 0
         self._buf = self._alloc(1 << 16)
@@ -553,8 +733,12 @@ class DvsSensor:
         k = poses_seq.shape[0]
         if self._n == 0:
             return np.zeros((k, 0, 4), dtype=np.int64)
-        uv = self.camera.top_to_pixels(poses_seq[:, :, :2].reshape(-1, 2)).reshape(k, self._n, 2)
-        r = self._radius_px[None, :]
+        uv = self.camera.to_pixels(poses_seq[:, :, :2].reshape(-1, 2)).reshape(k, self._n, 2)
+        # how far (px) from its floor centre a robot can change a pixel: its footprint, the
+        # contact shadow, the parallax of its top (at its distance from the nadir), a pixel
+        d = np.hypot(poses_seq[:, :, 0] - self.camera.nadir[0], poses_seq[:, :, 1] - self.camera.nadir[1])
+        reach = self._reach_const + self._parallax * (d + self._diag)
+        r = (self._diag + reach) / self.camera.pixel_m * 1.05 + 3.0
         return np.stack([np.floor(uv[..., 0] - r), np.floor(uv[..., 1] - r),
                          np.ceil(uv[..., 0] + r) + 1, np.ceil(uv[..., 1] + r) + 1],
                         axis=-1).astype(np.int64)
@@ -572,9 +756,9 @@ class DvsSensor:
             done, n, self._hist_i = _dvs_block(
                 poses_seq, t_seq, t0, cur, self._hist, self._hist_i, full, self.width,
                 self.height, self.camera.H, float(self.camera.nadir[0]), float(self.camera.nadir[1]),
-                float(self.camera.top_scale), self.camera.ax_top, self.camera.ay_top,
-                self.camera.background,
-                self._bg_log, self._app, self._markers, self.camera.pixel_m, illum,
+                float(self.camera.camera_height_m), self.camera.body == "flat", self.gain,
+                self.camera.ax, self.camera.ay, self.camera.background,
+                self._bg_log, self._rp, self._bodies, self._markers, self.camera.pixel_m, illum,
                 p.dark_current, p.cutoff_hz, p.min_cutoff_hz, self._lmem, self._llp,
                 self._thr_on, self._thr_off, self._t_last, int(p.refractory_us), int(max_count),
                 init, ox, oy, op, ot, self._last_refl, self._last_target, self._last_alpha,
@@ -593,17 +777,21 @@ class DvsSensor:
         return tuple(np.concatenate([o[c] for o in out]) for c in range(4))
 
     def _noise(self, t0: int, dt: int) -> tuple[np.ndarray, ...]:
-        """Background activity and hot-pixel events in (t0, t0 + dt] µs: time-sorted
+        """Background activity, leak and hot-pixel events in (t0, t0 + dt] µs: time-sorted
         columns (x, y, p, t)."""
         rng = self._rng
-        npix = self.width * self.height
-        k = int(rng.poisson(self.noise_rate_hz * npix * dt * 1e-6))
+        k = int(rng.poisson(self.background_rate_hz * dt * 1e-6))
+        if k:
+            pix = np.minimum(np.searchsorted(self._noise_cdf, rng.random(k) * self._noise_cdf[-1],
+                                             side="right"), len(self._noise_cdf) - 1)
+            pol_bg = rng.random(k) < self._noise_p_on[pix]
+        else:
+            pix, pol_bg = np.zeros(0, np.int64), np.zeros(0, bool)
         hot = self.hot_pixels
         kh = rng.poisson(self.params.hot_rate_hz * dt * 1e-6, len(hot))
         which = np.repeat(np.arange(len(hot)), kh)
-        idx = np.concatenate([rng.integers(0, npix, k), hot[which, 1] * self.width + hot[which, 0]])
-        pol = np.concatenate([rng.random(k) < self.params.noise_on_fraction,
-                              rng.integers(0, 2, len(which)).astype(bool)]).astype(np.uint8)
+        idx = np.concatenate([pix, hot[which, 1] * self.width + hot[which, 0]])
+        pol = np.concatenate([pol_bg, rng.integers(0, 2, len(which)).astype(bool)]).astype(np.uint8)
         t = t0 + 1 + rng.integers(0, dt, len(idx))
         order = np.argsort(t, kind="stable")
         idx, pol, t = idx[order], pol[order], t[order]

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from simulator.autopilot import PATTERNS, Autopilot, make_plans
-from simulator.camera import CeilingCamera
+from simulator.camera import BODIES, NADIR_OFFSET_M, CeilingCamera
 from simulator.dvs import DvsParams
 from simulator.simulation import TRUTH_DTYPE, Simulation
 from simulator.world import LIGHTING_LEVELS, RobotSpec, World
@@ -42,10 +42,18 @@ class Scenario:
         seed: seed of everything (physics, sensor, noise).
         width, height: event sensor size, px.
         colours: shell colours (sRGB) per robot; default cycles :data:`COLOURS`.
-        markers: print ArUco ids 0..n-1 on the shells.
+        markers: print ArUco ids 0..n-1 on the shells (off by default: real robots are plain
+            shells; a lab may add markers for the webcam).
         stagger_s: robot i starts moving at 0.2 + stagger_s * i s.
         dvs: pixel-model parameters (None: defaults).
         arena_m: arena side, m.
+        body: robot body model, ``"3d"`` (blade, treads, shell as boxes, ray-traced) or
+            ``"flat"`` (the shell top as a plate); see :func:`simulator.camera.robot_body`.
+        shadow: soft contact shadow on the mat around each robot.
+        camera_height_m: lens height above the mats, m.
+        nadir_offset_m: (dx, dy) of the point under the lens from the arena centre, m.
+        spin_dps: zero-point turn rate at full power, deg/s, with tread scrubbing (real
+            tracked robots: ~150; ~75 at half power); None: no scrubbing (ideal skid kinematics).
     """
 
     n_robots: int = 1
@@ -57,10 +65,15 @@ class Scenario:
     width: int = 640
     height: int = 480
     colours: list[tuple[int, int, int]] | None = None
-    markers: bool = True
+    markers: bool = False
     stagger_s: float = 0.3
     dvs: DvsParams | None = None
     arena_m: float = 1.83
+    body: str = "3d"
+    shadow: bool = True
+    camera_height_m: float = 2.5
+    nadir_offset_m: tuple[float, float] = NADIR_OFFSET_M
+    spin_dps: float | None = 150.0
 
     def validate(self) -> None:
         """Raise ValueError with a clear message when a field is out of range."""
@@ -74,8 +87,22 @@ class Scenario:
             raise ValueError(f"duration_s must be > 0, got {self.duration_s}")
         if self.lighting not in LIGHTING_LEVELS:
             raise ValueError(f"lighting must be one of {LIGHTING_LEVELS}, got {self.lighting!r}")
+        if self.body not in BODIES:
+            raise ValueError(f"body must be one of {BODIES}, got {self.body!r}")
+        if not 0.5 <= self.camera_height_m <= 10.0:
+            raise ValueError(f"camera_height_m must be in 0.5..10 m, got {self.camera_height_m}")
+        off = np.asarray(self.nadir_offset_m, dtype=float)
+        if off.shape != (2,) or not np.all(np.isfinite(off)) or np.any(np.abs(off) > self.arena_m):
+            raise ValueError(f"nadir_offset_m must be (dx, dy) within the arena side, got {self.nadir_offset_m!r}")
         if self.colours is not None and len(self.colours) < self.n_robots:
             raise ValueError(f"{len(self.colours)} colours for {self.n_robots} robots")
+
+    def camera(self) -> CeilingCamera:
+        """The ceiling event camera of this scenario (geometry, body model, shadow)."""
+        return CeilingCamera(self.width, self.height, self.arena_m, seed=self.seed,
+                             camera_height_m=self.camera_height_m,
+                             nadir_offset_m=tuple(self.nadir_offset_m), body=self.body,
+                             shadow=self.shadow)
 
     def robot_specs(self) -> list[RobotSpec]:
         """The robots of this scenario, placed at the start of their routes."""
@@ -88,7 +115,7 @@ class Scenario:
                 rgb, name = tuple(self.colours[i]), f"robot{i}"
             specs.append(RobotSpec(name=f"{name}{i}" if self.colours is None else name,
                                    color_rgb=rgb, marker_id=i if self.markers and i < 50 else None,
-                                   start=plan.start_pose()))
+                                   start=plan.start_pose(), spin_dps_full=self.spin_dps))
         return specs
 
 
@@ -143,7 +170,7 @@ def generate(scenario: Scenario, progress=None) -> Recording:
     scenario.validate()
     specs = scenario.robot_specs()
     world = World(specs, arena_m=scenario.arena_m, lighting=scenario.lighting, seed=scenario.seed)
-    camera = CeilingCamera(scenario.width, scenario.height, scenario.arena_m, seed=scenario.seed)
+    camera = scenario.camera()
     plans = make_plans(scenario.pattern, scenario.n_robots, scenario.arena_m,
                        scenario.duration_s, scenario.stagger_s)
     pilot = Autopilot(world, plans, scenario.power) if scenario.pattern != "still" else None

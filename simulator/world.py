@@ -18,6 +18,15 @@ Model (per robot, vectorised over robots)
   ``chi > 1`` growing with the turn rate (tracks skid sideways when turning), and a
   small lateral drift on curves. Encoders count tread (sprocket) rotation, so
   dead-reckoning from encoders over-estimates turns exactly like on the real robot.
+* Tread scrubbing (``RobotSpec.spin_dps_full``, default 150 deg/s): turning drags the
+  treads sideways over the mat; the resisting yaw torque, taken proportional to the yaw
+  rate, loads the motors, so a powered tread runs slower by ``scrub * omega`` (the inner
+  one of an arc faster: it is back-driven). ``scrub`` (m/s per rad/s) is set per robot so a
+  zero-point turn at full power settles at ``spin_dps_full`` (and at about half of it at
+  half power: the model is linear). Straight driving is unchanged (no yaw rate, no load);
+  arcs lose yaw rate in proportion to their yaw rate. The sprockets (encoders) see the
+  slowed treads plus the skid above; the gyro sees the true body rate. ``None``: no
+  scrubbing (the kinematics above alone, ~350-380 deg/s at full power).
 * Process noise (seeded) on tread speeds; walls keep the whole footprint inside the arena
   (the robot pushes against the wall, the treads keep turning).
 * IMU: accelerometer (gravity + body acceleration), gyro and magnetometer in the body
@@ -47,7 +56,7 @@ LIGHTING_LEVELS = ("full", "dimmed", "dark")
 
 @njit(cache=True, nogil=True)
 def _physics_step(h, pose, vtread, power, gain, tau, chi0, lat_slip, track, vmax, half, arena_m,
-                  vel, acc_body, travel, energy, noise, deadband, noise_sigma):
+                  vel, acc_body, travel, energy, noise, deadband, noise_sigma, scrub):
     """Advance every robot by ``h`` s (see the module docstring for the model)."""
     for i in range(pose.shape[0]):
         v_body_old = 0.5 * (vtread[i, 0] + vtread[i, 1])
@@ -57,6 +66,11 @@ def _physics_step(h, pose, vtread, power, gain, tau, chi0, lat_slip, track, vmax
             eff = 0.0 if abs(p) < deadband else p
             work += abs(eff) / MAX_POWER
             target = eff / MAX_POWER * vmax[i] * gain[i, side]
+            if eff != 0.0:
+                # scrubbing: the yaw-resisting torque loads the motors (torque-speed line);
+                # it slows the tread that drives the turn and back-drives the other one.
+                # An unpowered tread is held by the braked high-ratio gearbox.
+                target += (1.0 if side == 0 else -1.0) * scrub[i] * vel[i, 2]
             # the motor driver brakes at power 0 (shorted windings): faster than it accelerates
             t_c = 0.4 * tau[i, side] if target == 0.0 else tau[i, side]
             v = vtread[i, side] + (target - vtread[i, side]) * (1.0 - math.exp(-h / t_c))
@@ -114,6 +128,9 @@ class RobotSpec:
         counts_per_rev: encoder counts per sprocket revolution (150:1 motors: 1807).
         max_speed_mps: tread speed at power 400, m/s (0.23 m/s at 200).
         start: initial pose (x m, y m, yaw rad) in the arena frame.
+        spin_dps_full: zero-point turn rate at full power (left = -400, right = 400), deg/s,
+            once the tread scrubbing has settled (real tracked robots: ~150 at full power,
+            ~75 at half); ``None``: no scrubbing (the skid kinematics alone, ~350 deg/s).
     """
 
     name: str
@@ -126,6 +143,29 @@ class RobotSpec:
     counts_per_rev: int = 1807
     max_speed_mps: float = 0.46
     start: tuple[float, float, float] = (0.9, 0.9, 0.0)
+    spin_dps_full: float | None = 150.0
+
+
+def scrub_coefficient(spin_dps_full: float | None, chi0: float, track_width_m: float,
+                      max_speed_mps: float) -> float:
+    """Motor slow-down per yaw rate, (m/s) / (rad/s), that makes a zero-point turn at full
+    power settle at ``spin_dps_full`` for a robot whose skid factor at rest is ``chi0``
+    (0 when ``spin_dps_full`` is None or not below the skid kinematics' own rate).
+
+    Steady spin at full power: each tread runs at ``v_s = max_speed - scrub * omega`` and
+    ``omega = 2 v_s / (track * chi0 * (1 + 0.3 v_s / max_speed))`` (see :func:`_physics_step`).
+    """
+    if spin_dps_full is None:
+        return 0.0
+    if not spin_dps_full > 0:
+        raise ValueError(f"spin_dps_full must be > 0 deg/s or None, got {spin_dps_full}")
+    w = math.radians(spin_dps_full)
+    b = track_width_m * chi0
+    denom = 1.0 - 0.15 * b * w / max_speed_mps
+    if denom <= 0:
+        return 0.0
+    v_s = 0.5 * b * w / denom
+    return max(0.0, (max_speed_mps - v_s) / w)
 
 
 class World:
@@ -180,6 +220,10 @@ class World:
         self._gain = 1.0 + rng.normal(0.0, 0.025, (n, 2))
         self._tau = rng.uniform(0.05, 0.10, (n, 2))
         self._chi0 = rng.uniform(1.15, 1.30, n)          # effective track-width factor
+        # tread scrubbing: motor slow-down per yaw rate, (m/s)/(rad/s), 0 = off
+        self._scrub = np.array([scrub_coefficient(r.spin_dps_full, self._chi0[i], r.track_width_m,
+                                                  r.max_speed_mps)
+                                for i, r in enumerate(self.robots)], dtype=float)
         self._lat_slip = rng.uniform(0.01, 0.03, n)      # lateral drift per (m/s * rad/s)
         self._gyro_bias = rng.normal(0.0, 0.01, (n, 3))   # rad/s
         self._accel_bias = rng.normal(0.0, 0.05, (n, 3))  # m/s^2
@@ -228,7 +272,7 @@ class World:
         _physics_step(h, self._pose, self._vtread, self._power, self._gain, self._tau, self._chi0,
                       self._lat_slip, self._track, self._vmax, self._half, self.arena_m, self._vel,
                       self._acc_body, self._travel, self._energy, noise,
-                      float(self.DEADBAND), self.SPEED_NOISE * math.sqrt(h))
+                      float(self.DEADBAND), self.SPEED_NOISE * math.sqrt(h), self._scrub)
 
     # ------------------------------------------------------------------ state
     def pose(self, i: int) -> tuple[float, float, float]:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from simulator.camera import apply_homography
+from simulator.dvs import DvsParams
 from simulator.recording import load_recording, save_recording, write_events, write_truth_csv
 from simulator.scenarios import Scenario, generate
 
@@ -21,7 +22,10 @@ def speed(tr):
 
 
 def test_circle_radius_speed_and_staggered_starts():
-    rec = generate(Scenario(n_robots=2, pattern="circle", power=1.0, duration_s=5.0, **SMALL))
+    # without tread scrubbing (spin_dps=None): the circle at nearly full tread speed; the
+    # scrubbing robots' slower circle is in test_turning.py
+    rec = generate(Scenario(n_robots=2, pattern="circle", power=1.0, duration_s=5.0, spin_dps=None,
+                            **SMALL))
     first = rec.first_motion_us()
     assert list(first) == rec.robot_names
     assert 150_000 < first[rec.robot_names[0]] < first[rec.robot_names[1]]
@@ -75,7 +79,9 @@ def test_still_robots_never_move_and_give_only_noise():
 
 
 def test_events_are_sorted_labelled_and_near_the_robots():
-    rec = generate(Scenario(n_robots=2, pattern="figure8", duration_s=2.0, **SMALL))
+    # background at 0.1 Hz/px without leak events, so that most events are the robots'
+    rec = generate(Scenario(n_robots=2, pattern="figure8", duration_s=2.0,
+                            dvs=DvsParams(noise_rate_hz=0.1, leak_rate_hz=0.0), **SMALL))
     ev, sig = rec.events, rec.is_signal
     assert np.all(np.diff(ev["t"]) >= 0) and len(sig) == len(ev)
     assert 0.5 < sig.mean() < 1.0
