@@ -134,8 +134,10 @@ def test_estimator_trusts_tracks_across_but_not_along_the_motion_and_drops_outli
 def test_closed_loop_on_the_real_tracker_fed_by_the_simulated_event_camera():
     bench = load_bench()
     params = {"radius_m": 0.15}
-    paper = bench.simulate("circle", params, 1.0, "paper", seed=4)[0]
-    closed, _, _, _ = bench.simulate("circle", params, 1.0, "closed", seed=4, tracker=True)
+    # half power: a tracked robot's scrubbing treads leave no room to steer a 15 cm circle at full
+    # tread speed (the outer tread would need more than full power)
+    paper = bench.simulate("circle", params, 0.5, "paper", seed=4)[0]
+    closed, _, _, _ = bench.simulate("circle", params, 0.5, "closed", seed=4, tracker=True)
     assert closed.mean_m < 0.015 and closed.coverage_m < 0.02
     assert closed.mean_m * 5 <= paper.mean_m
 
