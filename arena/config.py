@@ -80,7 +80,9 @@ class ArenaConfig:
 
 @dataclass
 class CameraConfig:
-    """An event camera: its name (used in keys), sensor size (px), source URL and calibration."""
+    """An event camera: its name (used in keys), sensor size (px), source URL and calibration,
+    and where its lens is (``camera_height_m`` above the mats, ``nadir_m`` the arena point under
+    it, m; None: the calibration's, if it has them) for the tracker's parallax correction."""
 
     name: str
     width: int = 640
@@ -88,6 +90,8 @@ class CameraConfig:
     source: str | None = None
     calibration: dict | None = None  # calibration JSON dict: {"image_size": [w, h], "points": [...]}
     calibration_file: str | None = None
+    camera_height_m: float | None = None
+    nadir_m: tuple[float, float] | None = None
 
 
 @dataclass
@@ -103,7 +107,9 @@ class WebcamConfig:
 
 @dataclass
 class RobotConfig:
-    """One robot: name, shell colour (RGB), marker id, serial URL and wheel geometry (m)."""
+    """One robot: name, shell colour (RGB), marker id, serial URL, wheel geometry (m) and the
+    effective height (cm) at which the ceiling camera sees it (None: the tracker's default, a
+    Zumo's 3.2 cm: the mean height of its event cloud, lower than its 4.5 cm shell top)."""
 
     name: str
     color_rgb: tuple[int, int, int] = (20, 20, 20)
@@ -115,6 +121,7 @@ class RobotConfig:
     length_m: float = 0.10
     width_m: float = 0.10
     hsv_range: tuple | None = None  # ((h_lo, s_lo, v_lo), (h_hi, s_hi, v_hi)) for the colour detector
+    robot_height_cm: float | None = None
 
 
 @dataclass
@@ -176,6 +183,13 @@ class LabConfig:
         raise ConfigError(
             f"{self.path or 'lab config'}: no robot named {name!r}; known: {', '.join(r.name for r in self.robots) or 'none'}"
         )
+
+    def robot_height_cm(self) -> float | None:
+        """The robots' visible height for the tracker, cm: the mean of the ``robot_height_cm``
+        of the ``[[robots]]`` that give one (the tracker applies one height to every track),
+        None when none does."""
+        hs = [r.robot_height_cm for r in self.robots if r.robot_height_cm is not None]
+        return sum(hs) / len(hs) if hs else None
 
     def service(self, role: str) -> dict:
         """The options ``[services.<role>]`` gives (validated against :data:`SERVICE_OPTIONS` when
@@ -245,7 +259,7 @@ class ServiceOption:
             elif kind in ("int", "float"):
                 if isinstance(value, bool) or not isinstance(value, (int, float) if kind == "float" else int):
                     continue
-                if not math.isfinite(value) or (self.positive and value <= 0):
+                if not _finite(value) or (self.positive and value <= 0):
                     continue
                 if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
                     continue
@@ -263,6 +277,14 @@ class ServiceOption:
                 return True, value
         return False, None
 
+
+
+def _finite(x) -> bool:
+    """A finite number that fits a float (TOML integers have any size: 10**400 is not finite here)."""
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
 
 def _opt(type: str, default: Any = None, help: str = "", **kw: Any) -> ServiceOption:  # noqa: A002
     return ServiceOption(type, default, help, **kw)
@@ -292,8 +314,10 @@ SERVICE_OPTIONS: dict[str, dict[str, ServiceOption]] = {
         "slice_ms": _opt("float", 10.0, "offline slice length, ms", positive=True),
         "accumulation_ms": _opt("float", 100.0, "accumulation time t_a, ms", positive=True),
         "chassis_cm": _opt("float", 10.0, "robot footprint side, cm", positive=True),
-        "robot_height_cm": _opt("float", 4.5, "height of the shell tops, cm", lo=0, hi=100),
-        "camera_height_m": _opt("float", None, "lens height above the mats, m (default: the calibration's)",
+        "robot_height_cm": _opt("float", None, "visible height of the robots, cm (default: the [[robots]]' "
+                                "robot_height_cm, else 3.2: a Zumo's event cloud)", lo=0, hi=100),
+        "camera_height_m": _opt("float", None, "lens height above the mats, m (default: the camera's or its "
+                                "calibration's camera_height_m, else 2.5 assumed with a warning)",
                                 positive=True),
         "fleet_size": _opt("int", None, "number of robots (default: the lab's [[robots]])", lo=1),
         "queue": _opt("int", 100, "live: newest slices kept when lagging", lo=1),
@@ -435,7 +459,7 @@ class _Reader:
                 raise self._err(key, "a number (this key is required)", show=False)
             return default
         v = self.table[key]
-        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and _finite(v)
         if ok and ((lo is not None and v < lo) or (hi is not None and v > hi) or (positive and v <= 0)):
             ok = False
         if not ok:
@@ -466,7 +490,7 @@ class _Reader:
             return default
         v = self.table[key]
         good = (isinstance(v, list) and len(v) == 2 and all(
-            not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) and (not positive or x > 0)
+            not isinstance(x, bool) and isinstance(x, (int, float)) and _finite(x) and (not positive or x > 0)
             for x in v))
         if integers and good:
             good = all(isinstance(x, int) for x in v)
@@ -582,7 +606,7 @@ def _tables(root: _Reader, key: str) -> list[_Reader]:
 def _parse_cameras(root: _Reader, base_dir: Path | None) -> list[CameraConfig]:
     cameras: list[CameraConfig] = []
     for r in _tables(root, "cameras"):
-        r.unknown(("name", "width", "height", "source", "calibration", "points"))
+        r.unknown(("name", "width", "height", "source", "calibration", "points", "camera_height_m", "nadir_m"))
         name = r.name("name")
         if any(c.name == name for c in cameras):
             raise r._err("name", "a name not used by another camera", name)
@@ -590,7 +614,9 @@ def _parse_cameras(root: _Reader, base_dir: Path | None) -> list[CameraConfig]:
         cameras.append(CameraConfig(name=name, width=r.int("width", 640, lo=1, hi=65535),
                                     height=r.int("height", 480, lo=1, hi=65535),
                                     source=r.str("source", None), calibration=calib,
-                                    calibration_file=calib_file))
+                                    calibration_file=calib_file,
+                                    camera_height_m=r.float("camera_height_m", None, positive=True),
+                                    nadir_m=r.pair("nadir_m", None)))
     return cameras
 
 
@@ -611,7 +637,7 @@ def _parse_robots(root: _Reader) -> list[RobotConfig]:
     robots: list[RobotConfig] = []
     for r in _tables(root, "robots"):
         r.unknown(("name", "color", "marker_id", "serial_url", "sprocket_diameter_m", "track_width_m",
-                   "counts_per_rev", "length_m", "width_m", "hsv_range"))
+                   "counts_per_rev", "length_m", "width_m", "hsv_range", "robot_height_cm"))
         name = r.name("name")
         if name == "all":
             raise r._err("name", "any name but 'all' (reserved for commands to every robot)", name)
@@ -628,7 +654,7 @@ def _parse_robots(root: _Reader) -> list[RobotConfig]:
             track_width_m=r.float("track_width_m", 0.09, positive=True),
             counts_per_rev=r.int("counts_per_rev", 1807, lo=1),
             length_m=r.float("length_m", 0.10, positive=True), width_m=r.float("width_m", 0.10, positive=True),
-            hsv_range=hsv))
+            hsv_range=hsv, robot_height_cm=r.float("robot_height_cm", None, lo=0, hi=100)))
     return robots
 
 

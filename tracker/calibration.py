@@ -7,9 +7,14 @@ one mat corner, yaw counter-clockwise from +x). The calibration file is JSON::
 
 with at least 4 points (no 3 of the first 4 collinear). The same dict is accepted inside a
 lab config's camera table (``arena.config.CameraConfig.calibration``). Optional keys:
-``height_m`` (height above the mats of the plane the points were taken on, default 0) and
-``camera_height_m`` (height of the lens above the mats), used for the parallax correction
-of robots seen at their shell-top height (see :meth:`Calibration.parallax_factor`).
+``height_m`` (height above the mats of the plane the points were taken on, default 0),
+``camera_height_m`` (height of the lens above the mats, m) and ``nadir_m`` (``[x, y]``, the
+arena point straight under the lens, m; or ``nadir_px``, its pixel), used for the parallax correction of robots seen
+above the mats (see :meth:`Calibration.parallax_factor`). ``arena calibrate`` writes them when
+it is told them (``--camera-height-m``, ``--nadir``) or can estimate them (the camera's pose
+from the homography and the lens's focal length: :meth:`Calibration.estimate_pose`). Unknown
+camera height: the tracker assumes :data:`FALLBACK_CAMERA_HEIGHT_M` and says so; unknown
+nadir: the image centre's arena point (the nadir of a camera looking straight down).
 
 The fit, the error type and the file reader are :mod:`arena.homography`'s, shared with the
 ground truth, the viewer and the recorder; this module adds what the tracker needs on top
@@ -29,7 +34,39 @@ import numpy as np
 from arena.homography import CalibrationError, apply_homography, calibration_points, fit_homography
 from arena.homography import read_calibration_json as _read_json
 
-__all__ = ["Calibration", "CalibrationError", "load_calibration"]
+__all__ = ["Calibration", "CalibrationError", "load_calibration", "camera_calibration", "CameraPose",
+           "FALLBACK_CAMERA_HEIGHT_M", "DEFAULT_ROBOT_HEIGHT_M"]
+
+#: Lens height assumed when neither the command line, the lab file nor the calibration gives
+#: one, m: a ceiling camera under a room's ~2.5 m ceiling. The tracker warns when it uses it.
+FALLBACK_CAMERA_HEIGHT_M = 2.5
+#: Effective visible height of a Zumo 32U4, m: the mean height of its event cloud, not its shell
+#: top (4.5 cm). The events come from the treads (~3 cm), the shell's top edges (~4 cm), its side
+#: walls and its shadow, so their centroid sits lower than the top: on independent recordings
+#: (issue 19) a Zumo's cloud shifted outwards by ~1.3 % of its distance from the nadir (less for
+#: bright shells), which under a 2.5 m camera is a point ~3.2 cm above the mats.
+DEFAULT_ROBOT_HEIGHT_M = 0.032
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """The camera's pose recovered from a calibration and the focal length
+    (:meth:`Calibration.estimate_pose`).
+
+    Attributes:
+        camera_height_m: lens height above the mats, m.
+        nadir_m: arena point under the lens, m.
+        tilt_deg: angle between the optical axis and the vertical, degrees.
+        consistency: ratio of the two column norms of K^-1 H^-1 (1 for a pinhole with square
+            pixels; far from 1: wrong lens values or a bad homography. For a camera looking
+            nearly straight down it stays near 1 whatever the focal length, so it does not
+            check the focal length: the height's relative error is the focal length's).
+    """
+
+    camera_height_m: float
+    nadir_m: tuple[float, float]
+    tilt_deg: float
+    consistency: float
 
 
 @dataclass
@@ -40,6 +77,10 @@ class Calibration:
         H: 3x3 homography, sensor px -> arena m.
         image_size: sensor (width, height), px.
         pixels, arena_m: the (n, 2) point pairs it was fitted to.
+        height_m: height of the plane of the points above the mats, m.
+        camera_height_m: lens height above the mats, m (None: unknown).
+        nadir: arena point under the lens, (x, y) m (JSON key ``nadir_m``; None: unknown,
+            :meth:`nadir_m` then gives the image centre's point).
     """
 
     H: np.ndarray
@@ -48,6 +89,7 @@ class Calibration:
     arena_m: np.ndarray
     height_m: float = 0.0
     camera_height_m: float | None = None
+    nadir: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         self._h = tuple(float(c) for c in np.asarray(self.H, dtype=np.float64).ravel())
@@ -84,9 +126,27 @@ class Calibration:
             cal.camera_height_m = None if cam_h is None else float(cam_h)
         except (ValueError, TypeError) as exc:
             raise CalibrationError(f"{source}: {exc}") from None
-        if cal.camera_height_m is not None and not cal.camera_height_m > cal.height_m:
+        if cal.camera_height_m is not None and not (math.isfinite(cal.camera_height_m)
+                                                    and cal.camera_height_m > cal.height_m):
             raise CalibrationError(f"{source}: camera_height_m must be above height_m")
+        nadir = d.get("nadir_m")
+        if nadir is not None:
+            cal.nadir = _xy(nadir, f"{source}: nadir_m")
+        elif d.get("nadir_px") is not None:  # the nadir as a pixel (e.g. the principal point)
+            cal.nadir = cal.point_to_arena(*_xy(d["nadir_px"], f"{source}: nadir_px"))
         return cal
+
+    def with_geometry(self, camera_height_m: float | None = None, nadir_m=None) -> "Calibration":
+        """Set the lens height (m) and the nadir ((x, y) m) where given (None keeps the current)."""
+        if camera_height_m is not None:
+            h = float(camera_height_m)
+            if not (math.isfinite(h) and h > self.height_m):
+                raise CalibrationError(f"camera height {camera_height_m} m must be above the calibration plane "
+                                       f"({self.height_m} m)")
+            self.camera_height_m = h
+        if nadir_m is not None:
+            self.nadir = _xy(nadir_m, "nadir_m")
+        return self
 
     def to_dict(self) -> dict:
         d = {"image_size": [int(self.image_size[0]), int(self.image_size[1])],
@@ -96,12 +156,45 @@ class Calibration:
             d["height_m"] = self.height_m
         if self.camera_height_m is not None:
             d["camera_height_m"] = self.camera_height_m
+        if self.nadir is not None:
+            d["nadir_m"] = [float(self.nadir[0]), float(self.nadir[1])]
         return d
 
     def nadir_m(self) -> tuple[float, float]:
-        """Arena point under the camera, m: taken as the image centre's (a ceiling camera
-        looking down with its principal point at the centre)."""
+        """Arena point under the lens, m: the calibration's ``nadir_m`` when known, else the
+        image centre's arena point (exact for a camera looking straight down with its principal
+        point at the image centre; the arena centre when the camera is centred over it)."""
+        if self.nadir is not None:
+            return self.nadir
         return self.point_to_arena(self.image_size[0] / 2.0, self.image_size[1] / 2.0)
+
+    def estimate_pose(self, focal_px: float, principal_px: tuple[float, float] | None = None) -> CameraPose:
+        """The camera's height and nadir from this homography and the lens's focal length.
+
+        The inverse homography (arena -> px) of a pinhole camera is K [r1 r2 t] up to scale
+        (K: focal length ``focal_px`` in px, square pixels, principal point ``principal_px``,
+        default the image centre; lens distortion ignored); its rotation and translation give
+        the lens's position above the calibration plane. For a camera looking (nearly) straight
+        down the height is ``focal_px / px_per_m``, so its relative error is the focal length's.
+        """
+        f = float(focal_px)
+        if not (math.isfinite(f) and f > 0):
+            raise CalibrationError(f"focal length must be > 0 px, got {focal_px}")
+        cx, cy = principal_px if principal_px is not None else (self.image_size[0] / 2.0, self.image_size[1] / 2.0)
+        K = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+        M = np.linalg.solve(K, self._Hinv)
+        n1, n2 = float(np.linalg.norm(M[:, 0])), float(np.linalg.norm(M[:, 1]))
+        lam = 2.0 / (n1 + n2)
+        if M[2, 2] * lam < 0:  # the mats are in front of the lens
+            lam = -lam
+        r1, r2, t = lam * M[:, 0], lam * M[:, 1], lam * M[:, 2]
+        R = np.column_stack([r1, r2, np.cross(r1, r2)])
+        U, _, Vt = np.linalg.svd(R)
+        R = U @ Vt
+        C = -R.T @ t        # lens in the arena frame (z normal to the mats; sign: handedness)
+        tilt = math.degrees(math.acos(min(1.0, abs(float(R[2, 2])))))
+        return CameraPose(camera_height_m=self.height_m + abs(float(C[2])), nadir_m=(float(C[0]), float(C[1])),
+                          tilt_deg=tilt, consistency=min(n1, n2) / max(n1, n2))
 
     def parallax_factor(self, object_height_m: float, camera_height_m: float) -> float:
         """Scale of distances from the nadir that brings a point seen at ``object_height_m``
@@ -167,8 +260,39 @@ class Calibration:
         return float(np.sqrt((d ** 2).sum(1).mean()))
 
 
+def _xy(value, what: str) -> tuple[float, float]:
+    try:
+        x, y = (float(c) for c in value)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{what}: expected [x, y] in arena metres, got {value!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise CalibrationError(f"{what}: expected finite [x, y] in arena metres, got {value!r}")
+    return x, y
+
+
+def camera_calibration(cam, source: str = "lab config") -> Calibration:
+    """The calibration of a lab config's camera (``arena.config.CameraConfig``): its inline
+    points or the file it names, with the camera table's ``camera_height_m`` and ``nadir_m``
+    (when given) over the calibration's."""
+    where = f"{source} camera {cam.name}"
+    if cam.calibration is not None:
+        cal = Calibration.from_dict(cam.calibration, where)
+    elif cam.calibration_file is not None:
+        path = Path(cam.calibration_file)
+        if not path.is_file():
+            raise CalibrationError(f"{path}: no such calibration file ({where})")
+        cal = Calibration.from_dict(_read_json(path), str(path))
+    else:
+        raise CalibrationError(f"{source}: camera {cam.name!r} has no calibration")
+    try:
+        return cal.with_geometry(getattr(cam, "camera_height_m", None), getattr(cam, "nadir_m", None))
+    except CalibrationError as exc:
+        raise CalibrationError(f"{where}: {exc}") from None
+
+
 def load_calibration(path: str | Path, camera: str | None = None) -> Calibration:
-    """Load a calibration JSON file, or a lab config TOML (its camera ``camera`` or the first)."""
+    """Load a calibration JSON file, or a lab config TOML (its camera ``camera`` or the first,
+    see :func:`camera_calibration`)."""
     path = Path(path)
     if not path.is_file():
         raise CalibrationError(f"{path}: no such calibration file")
@@ -179,9 +303,7 @@ def load_calibration(path: str | Path, camera: str | None = None) -> Calibration
             cam = load_lab_config(path).camera(camera)
         except ConfigError as exc:
             raise CalibrationError(str(exc)) from None
-        if cam.calibration is None:
-            raise CalibrationError(f"{path}: camera {cam.name!r} has no calibration")
-        return Calibration.from_dict(cam.calibration, f"{path} camera {cam.name}")
+        return camera_calibration(cam, str(path))
     return Calibration.from_dict(_read_json(path), str(path))
 
 

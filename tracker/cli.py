@@ -25,8 +25,9 @@ Options not given as flags come from the lab config's [services.tracker] table (
 backend, slice_ms, accumulation_ms, chassis_cm, robot_height_cm, camera_height_m, fleet_size, queue,
 names_from_groundtruth, state_max_age_s), else the defaults. The method in use is printed at the end
 offline and shown live by `arena status` (gauges tracker, detector).
-CSV columns: t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events
-(t_us: time of the pose in the input's clock; arena metres; yaw CCW from +x; empty = unknown)."""
+CSV columns: t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events,host_ns
+(t_us: time of the pose in the input's clock; arena metres; yaw CCW from +x; host_ns: host
+capture time of t_us, live only; empty = unknown)."""
 
 CALIBRATE_EXAMPLES = """\
 Examples:
@@ -36,6 +37,12 @@ Examples:
   arena calibrate --image frame.png --arena-size 1.83 -o calib.json
   # or in the event image accumulated over the first seconds of a recording
   arena calibrate --events rec.raw --seconds 5 -o calib.json
+  # where the lens is, for the tracker's parallax correction: measured ...
+  arena calibrate --image frame.png --camera-height-m 2.45 --nadir 0.92,0.90 -o calib.json
+  # ... or estimated from the homography and the lens (focal length, sensor pixel pitch)
+  arena calibrate --image frame.png --focal-length-mm 4.5 --pixel-pitch-um 15 -o calib.json
+Without --camera-height-m or the lens, the file has no camera_height_m: the tracker then
+assumes 2.5 m and warns. Without --nadir (or the lens) the nadir is the image centre's point.
 The corners found are mapped to the arena with (0,0) at the image's bottom-left mat corner,
 x along the image's bottom edge and y up the image. A preview PNG (grid every 0.25 m) is
 written beside the JSON (--preview to choose its path)."""
@@ -81,9 +88,13 @@ def register_track(sub) -> None:
                    help="accumulation time t_a, ms (default 100, the paper's best)")
     p.add_argument("--chassis-cm", type=float, default=None, help="robot footprint side, cm (default 10)")
     p.add_argument("--robot-height-cm", type=float, default=None,
-                   help="height of the shell tops the camera sees, cm (default 4.5; parallax correction)")
+                   help="effective height of what the camera sees of the robots, cm, for the parallax "
+                        "correction (default: the lab's [[robots]] robot_height_cm, else 3.2: a Zumo's event "
+                        "cloud, lower than its 4.5 cm shell top)")
     p.add_argument("--camera-height-m", type=float, default=None,
-                   help="lens height above the mats, m (default: the calibration's camera_height_m, else 2.5)")
+                   help="lens height above the mats, m, for the parallax correction (default: the lab "
+                        "camera's or the calibration's camera_height_m; without one 2.5 m is ASSUMED and a "
+                        "warning says so)")
     p.add_argument("--fleet-size", type=int, default=None,
                    help="number of robots (caps confirmed tracks; default: the lab config's robots)")
     p.add_argument("--name", default=None, help="live: service name in arena status (default: tracker-CAMERA)")
@@ -139,6 +150,11 @@ def run_track(args) -> int:
     lab = _lab(args)
     # flags win, then the lab file's [services.tracker], then the defaults
     apply_service_options(args, lab, "tracker")
+    if args.robot_height_cm is None:  # then the lab's robots, then a Zumo's event cloud
+        from tracker.calibration import DEFAULT_ROBOT_HEIGHT_M
+
+        lab_h = lab.robot_height_cm() if lab is not None else None
+        args.robot_height_cm = lab_h if lab_h is not None else 100.0 * DEFAULT_ROBOT_HEIGHT_M
     if args.camera:
         from tracker.service import run_live
 
@@ -147,6 +163,10 @@ def run_track(args) -> int:
 
 
 def _check_geometry(args) -> None:
+    if args.robot_height_cm is None:  # not resolved by run_track: a Zumo's event cloud
+        from tracker.calibration import DEFAULT_ROBOT_HEIGHT_M
+
+        args.robot_height_cm = 100.0 * DEFAULT_ROBOT_HEIGHT_M
     if not (args.chassis_cm > 0 and math.isfinite(args.chassis_cm)):
         raise fail(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
     if not (0 <= args.robot_height_cm < 100):
@@ -175,10 +195,15 @@ def run_offline(args, lab=None) -> int:
     if args.fleet_size is not None and args.fleet_size < 1:
         raise fail(f"arena track: --fleet-size must be >= 1, got {args.fleet_size}")
     _check_geometry(args)
-    calibration = args.calibration
-    if calibration is None and lab is not None and lab.cameras:  # the lab's camera: a file it names, or inline
-        calibration = lab.camera().calibration_file or lab.path
-    cal = _load_calibration(calibration)
+    if args.calibration is None and lab is not None and lab.cameras:  # the lab's camera: a file it names, or inline
+        from tracker.calibration import camera_calibration
+
+        try:
+            cal = camera_calibration(lab.camera(), lab.path or "lab config")
+        except CalibrationError as exc:
+            raise fail(f"arena track: {exc}") from None
+    else:
+        cal = _load_calibration(args.calibration)
     fleet_size = args.fleet_size
     if fleet_size is None and lab is not None:  # a lab config also tells how many robots there are
         fleet_size = len(lab.robots) or None
@@ -194,6 +219,8 @@ def run_offline(args, lab=None) -> int:
         pipe = Pipeline(cal, fleet_size=fleet_size, **pipeline_options(args))
     except CalibrationError as exc:
         raise fail(f"arena track: {exc}") from None
+    if pipe.parallax_warning:
+        print(f"arena track: warning: {pipe.parallax_warning}", file=sys.stderr)
     slice_us = int(round(args.slice_ms * 1000))
     try:   # the edge's windows (arena.slicing): multiples of slice_us, late events kept and counted
         slicer = Slicer(slice_us)
@@ -260,9 +287,67 @@ def register_calibrate(sub) -> None:
     p.add_argument("--size", type=_size, metavar="WxH", help="sensor size, px (needed with --points)")
     p.add_argument("--arena-size", type=float, default=1.83, help="mat side, m (default 1.83)")
     p.add_argument("--seconds", type=float, default=5.0, help="events accumulated from the start, s (default 5)")
+    p.add_argument("--camera-height-m", type=float, default=None, metavar="M",
+                   help="lens height above the mats, m (measured; stored as camera_height_m for the "
+                        "tracker's parallax correction; wins over the estimate from the lens)")
+    p.add_argument("--nadir", type=_xy_arg, default=None, metavar="X,Y",
+                   help="arena point under the lens, m (e.g. a plumb line; stored as nadir_m; default: "
+                        "the estimate from the lens, else none: the tracker uses the image centre's point)")
+    p.add_argument("--focal-length-mm", type=float, default=None, metavar="MM",
+                   help="lens focal length, mm: with --pixel-pitch-um, estimate the camera's height and nadir "
+                        "from the homography (pinhole model, principal point at the image centre)")
+    p.add_argument("--pixel-pitch-um", type=float, default=None, metavar="UM",
+                   help="sensor pixel pitch, µm (e.g. 15 for a Prophesee Gen3 VGA, 4.86 for an IMX636)")
     p.add_argument("-o", "--output", required=True, metavar="JSON", help="calibration file to write")
     p.add_argument("--preview", metavar="PNG", help="preview image (default: OUTPUT with .png)")
     p.set_defaults(func=run_calibrate)
+
+
+def _xy_arg(text: str) -> tuple[float, float]:
+    try:
+        x, y = (float(s) for s in text.split(","))
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y in arena metres, got {text!r}") from None
+    return x, y
+
+
+def _camera_geometry(args, cal) -> list[str]:
+    """Put the lens height and nadir (given, or estimated from the lens) into ``cal``; returns
+    the lines to print."""
+    from tracker.calibration import FALLBACK_CAMERA_HEIGHT_M, CalibrationError
+
+    notes = []
+    lens = (args.focal_length_mm, args.pixel_pitch_um)
+    if (lens[0] is None) != (lens[1] is None):
+        raise fail("arena calibrate: --focal-length-mm and --pixel-pitch-um go together")
+    if args.camera_height_m is not None and not (math.isfinite(args.camera_height_m) and args.camera_height_m > 0):
+        raise fail(f"arena calibrate: --camera-height-m must be > 0 m, got {args.camera_height_m}")
+    height, nadir = args.camera_height_m, args.nadir
+    if lens[0] is not None:
+        if not all(math.isfinite(v) and v > 0 for v in lens):
+            raise fail(f"arena calibrate: --focal-length-mm and --pixel-pitch-um must be > 0, got {lens}")
+        pose = cal.estimate_pose(1000.0 * lens[0] / lens[1])
+        notes.append(f"estimated from the lens: camera {pose.camera_height_m:.3f} m above the mats, nadir "
+                     f"({pose.nadir_m[0]:.3f}, {pose.nadir_m[1]:.3f}) m, tilt {pose.tilt_deg:.1f} deg"
+                     + (f" (warning: the homography fits this focal length poorly, column ratio "
+                        f"{pose.consistency:.3f}; check the lens values)" if pose.consistency < 0.95 else ""))
+        height = pose.camera_height_m if height is None else height
+        nadir = pose.nadir_m if nadir is None else nadir
+    try:
+        cal.with_geometry(height, nadir)
+    except CalibrationError as exc:
+        raise fail(f"arena calibrate: {exc}") from None
+    if cal.camera_height_m is None:
+        notes.append(f"warning: camera height unknown, none stored: the tracker will assume "
+                     f"{FALLBACK_CAMERA_HEIGHT_M:g} m for its parallax correction; measure the lens height and "
+                     "give --camera-height-m (or --focal-length-mm with --pixel-pitch-um to estimate it)")
+    if cal.nadir is None:
+        x, y = cal.nadir_m()
+        notes.append(f"nadir unknown, none stored: the tracker will use the image centre's point ({x:.3f}, "
+                     f"{y:.3f}) m (the nadir of a camera looking straight down; give --nadir X,Y if it is not)")
+    return notes
 
 
 def run_calibrate(args) -> int:
@@ -300,6 +385,7 @@ def run_calibrate(args) -> int:
             cal = Calibration.from_points(corners, mat_points(L), (image.shape[1], image.shape[0]))
     except CalibrationError as exc:
         raise fail(f"arena calibrate: {exc}") from None
+    notes = _camera_geometry(args, cal)
     cal.save(args.output)
     preview = args.preview or str(Path(args.output).with_suffix(".png"))
     if image is None:
@@ -307,6 +393,8 @@ def run_calibrate(args) -> int:
     cv2.imwrite(preview, _preview(cal, image, L))
     print(f"wrote {args.output} ({len(cal.pixels)} points, reprojection {1000 * cal.reprojection_error_m():.1f} mm, "
           f"{cal.px_per_m():.1f} px/m at the centre) and {preview}", file=sys.stderr)
+    for line in notes:
+        print(f"arena calibrate: {line}", file=sys.stderr)
     return 0
 
 

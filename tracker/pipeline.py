@@ -21,7 +21,7 @@ import numpy as np
 
 from arena.slicing import Slicer
 from tracker.accumulate import PixelWindow
-from tracker.calibration import Calibration
+from tracker.calibration import DEFAULT_ROBOT_HEIGHT_M, FALLBACK_CAMERA_HEIGHT_M, Calibration
 from tracker.detect import Detection, Detector, DetectorConfig, PaperConfig, PaperDetector
 from tracker.fleet import FleetConfig, FleetTracker
 from tracker.idtrack import IDTrack
@@ -50,16 +50,21 @@ class Pipeline:
         chassis_m: robot footprint side, m (physical parameter of detector and tracker).
         fleet_size: number of robots in the lab, caps confirmed tracks (None: unknown).
         backend: DBSCAN backend ``grid`` (exact, fast) or ``sklearn`` (reference).
-        robot_height_m: height of the robots' shell tops, which the camera sees, m.
+        robot_height_m: effective height of what the camera sees of the robots, m (default
+            :data:`~tracker.calibration.DEFAULT_ROBOT_HEIGHT_M`, a Zumo's event cloud: 3.2 cm).
         camera_height_m: lens height above the mats, m (default: the calibration's
-            ``camera_height_m``, else 2.5). With the robot height it corrects the parallax of
-            the default detector's positions (~1.8 % of the distance from the camera's nadir:
-            up to ~2 cm at the arena's corners). Paper mode keeps the paper's plain homography.
+            ``camera_height_m``, else :data:`~tracker.calibration.FALLBACK_CAMERA_HEIGHT_M` =
+            2.5 m assumed, and :attr:`parallax_warning` says so). With the robot height it
+            corrects the parallax of the default detector's positions: distances from the
+            calibration's nadir (:meth:`Calibration.nadir_m`) shrink by the factor
+            :attr:`parallax` (1.3 % for 3.2 cm under 2.5 m: ~1.7 cm at a 1.83 m arena's corners
+            seen from its centre). Paper mode keeps the paper's plain homography.
     """
 
     def __init__(self, calibration: Calibration, tracker: str = "fleet", detector: str = "default",
                  accumulation_us: int = 100_000, chassis_m: float = 0.10, fleet_size: int | None = None,
-                 backend: str = "grid", robot_height_m: float = 0.045, camera_height_m: float | None = None
+                 backend: str = "grid", robot_height_m: float = DEFAULT_ROBOT_HEIGHT_M,
+                 camera_height_m: float | None = None
                  ) -> None:
         if tracker not in TRACKERS:
             raise ValueError(f"unknown tracker {tracker!r}; choose from {', '.join(TRACKERS)}")
@@ -71,10 +76,28 @@ class Pipeline:
         self.accumulation_us = int(accumulation_us)
         w, h = calibration.image_size
         ppm = calibration.px_per_m()
-        cam_h = camera_height_m if camera_height_m is not None else (calibration.camera_height_m or 2.5)
+        if camera_height_m is not None:
+            cam_h, cam_src = float(camera_height_m), "given"
+        elif calibration.camera_height_m is not None:
+            cam_h, cam_src = calibration.camera_height_m, "calibration"
+        else:
+            cam_h, cam_src = FALLBACK_CAMERA_HEIGHT_M, "assumed"
+        #: lens height used for the parallax correction, m, and where it came from
+        #: (``given``, ``calibration`` or ``assumed``: :data:`FALLBACK_CAMERA_HEIGHT_M`)
+        self.camera_height_m, self.camera_height_source = cam_h, cam_src
         #: parallax: arena positions are scaled by this about the nadir (1 in paper mode)
         self.parallax = 1.0 if detector == "paper" else calibration.parallax_factor(robot_height_m, cam_h)
         self._nadir = calibration.nadir_m()
+        #: one line for the log when the correction rests on the assumed height (else None)
+        self.parallax_warning: str | None = None
+        if cam_src == "assumed" and detector != "paper":
+            self.parallax_warning = (
+                f"camera height unknown: parallax correction assumes the lens {cam_h:g} m above the mats "
+                f"(robots seen {100 * robot_height_m:g} cm up: positions pulled {100 * (1 - self.parallax):.2f} % "
+                f"towards the nadir at ({self._nadir[0]:.2f}, {self._nadir[1]:.2f}) m"
+                f"{'' if calibration.nadir is not None else ', the image centre'}); set --camera-height-m, "
+                "[services.tracker] camera_height_m, the lab camera's camera_height_m or the calibration's "
+                "(arena calibrate --camera-height-m)")
         if detector == "paper":
             self.detector = PaperDetector(PaperConfig(backend=backend), w, h)
         else:
@@ -107,7 +130,7 @@ class Pipeline:
         hints = None
         if isinstance(self.tracker, FleetTracker):
             pred = self.tracker.predictions(t_end_us)
-            if len(pred) >= 2:
+            if len(pred):   # >= 2 split a shared cluster; one groups a robot's edge clusters
                 hints = self.calibration.to_pixel(pred)
         if isinstance(self.detector, Detector):
             dets = self.detector.detect_window(self.pixels, t_end_us, hints=hints)
@@ -137,7 +160,7 @@ class Pipeline:
         return Observation(x=float(x), y=float(y), t_us=d.t_us, vx=vx, vy=vy, speed_sigma=sig, yaw=yaw,
                            yaw_source=d.heading_source, u=d.u, v=d.v, n_events=d.n_events,
                            t_vel_us=d.t_vel_us, shape_yaw=shape, shape_order=d.shape_order,
-                           t_act_us=d.t_act_us)
+                           t_act_us=d.t_act_us, whole=d.whole)
 
 
 def warm_up(make_pipeline, n_slices: int = 12) -> None:

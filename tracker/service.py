@@ -141,6 +141,8 @@ def _num(d: dict, key: str, where: str, *, optional: bool = False, lim: float | 
         raise ValueError(f"{where}.{key} is missing or null, expected a number")
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise ValueError(f"{where}.{key} is a {type(v).__name__}, expected a number")
+    if isinstance(v, int) and abs(v) > 2**1023:   # JSON ints have any size: math.isfinite would overflow
+        raise ValueError(f"{where}.{key} is an integer of {len(str(abs(v)))} digits, expected a finite number")
     if not math.isfinite(v):
         raise ValueError(f"{where}.{key} is {v}, expected a finite number")
     if lim is not None and abs(v) > lim:
@@ -468,7 +470,7 @@ def run_live(args) -> int:
     from arena.config import ConfigError
     from arena.service import Service, stop_on_signals
     from arena.session import SessionError, load_lab_from_args, open_session
-    from tracker.calibration import Calibration, CalibrationError
+    from tracker.calibration import CalibrationError, camera_calibration
     from tracker.cli import _check_geometry, _load_calibration, pipeline_options
 
     try:
@@ -484,10 +486,11 @@ def run_live(args) -> int:
     elif lab is not None:
         try:
             cam = lab.camera(args.camera)
-            if cam.calibration is None:
+            if cam.calibration is None and cam.calibration_file is None:
                 raise fail(f"arena track: camera {args.camera!r} of {lab.path} has no calibration; "
                                  "give --calibration FILE")
-            cal = Calibration.from_dict(cam.calibration, f"{lab.path} camera {args.camera}")
+            # its points or file, with the camera table's camera_height_m / nadir_m
+            cal = camera_calibration(cam, lab.path or "lab config")
         except (ConfigError, CalibrationError) as exc:
             raise fail(f"arena track: {exc}") from None
     else:
@@ -502,6 +505,8 @@ def run_live(args) -> int:
         pipe = make_pipeline()
     except CalibrationError as exc:
         raise fail(f"arena track: {exc}") from None
+    if pipe.parallax_warning:
+        log.warning("%s", pipe.parallax_warning)
     # compile the kernels before declaring liveliness: "alive" then means "tracks at full rate"
     t0 = time.monotonic()
     warm_up(make_pipeline)

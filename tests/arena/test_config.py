@@ -164,3 +164,12 @@ def test_the_example_documents_every_service_option_and_its_commented_options_lo
     lab = load_lab_config(p)
     assert lab.service("edge")["denoise"] is True and lab.service("viewer") == {"port": 8080}
     assert lab.service("bridge")["low_battery_mv"] == 4400
+
+
+def test_a_huge_toml_integer_is_a_config_error_not_an_overflow():
+    """TOML integers have any size; one too big for a float is refused like any bad number."""
+    from arena.config import ConfigError, parse_lab_config
+
+    for doc in ({"arena": {"size_m": [10**400, 1]}},):
+        with pytest.raises(ConfigError, match="size_m"):
+            parse_lab_config(doc)

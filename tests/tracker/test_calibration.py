@@ -117,8 +117,8 @@ def test_parallax_factor_from_the_heights():
         Calibration.from_dict({**d, "height_m": 3.0, "camera_height_m": 2.4})
     from tracker.pipeline import Pipeline
 
-    assert Pipeline(top).parallax == pytest.approx(1.0)
-    assert Pipeline(cal).parallax == pytest.approx(0.982)                   # default: 4.5 cm shells, 2.5 m
+    assert Pipeline(top, robot_height_m=0.045).parallax == pytest.approx(1.0)
+    assert Pipeline(cal).parallax == pytest.approx(1 - 0.032 / 2.5)  # default: a Zumo's event cloud, 2.5 m assumed
     assert Pipeline(cal, detector="paper", tracker="idtrack").parallax == 1.0  # the paper's plain homography
 
 

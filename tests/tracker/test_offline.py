@@ -15,7 +15,7 @@ from groundtruth.metrics import TRUTH_DTYPE, evaluate, read_tracks_csv
 from tests.conftest import arena_cmd
 
 HEADER = ["t_us", "track_id", "robot", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps", "u_px", "v_px", "state",
-          "n_events"]
+          "n_events", "host_ns"]
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +55,7 @@ def test_offline_csv_columns_units_and_accuracy(recording, mode):
     assert yaw.size > 0.8 * len(body) and np.all(np.abs(yaw) <= math.pi)                      # radians
     assert {r[10] for r in body} <= {"confirmed", "coasting", "tentative"}
     assert all(int(r[11]) >= 0 for r in body)
+    assert all(r[12] == "" for r in body)   # a file read offline has no host capture time
     scores = evaluate(read_tracks_csv(out), truth, gate_m=0.10)
     assert scores.id_switches == 0 and scores.mota > 0.95
     if not mode:  # the default method: sub-centimetre, heading within a few degrees, speeds in m/s
