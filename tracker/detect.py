@@ -70,6 +70,10 @@ class Detection:
         shape_order: the chassis' rotational symmetry (4 for a square footprint, 2 for a rectangle).
         t_act_us: end of the cluster's activity (µs), where the position is evaluated: before
             ``t_us`` when the robot stopped inside the window (None: not estimated).
+        whole: True when the detection covers the whole robot (its leading and trailing edges
+            grouped, or a filled cluster as long and wide as the chassis); False for a lone
+            edge bar or a sparse part, whose position is less certain (``shape_axis`` NaN).
+        n_parts: DBSCAN clusters grouped into this detection (1: a single cluster).
     """
 
     u: float
@@ -87,6 +91,8 @@ class Detection:
     shape_axis: float = math.nan
     shape_order: int = 4
     t_act_us: int | None = None
+    whole: bool = True
+    n_parts: int = 1
 
 
 # --------------------------------------------------------------------------- pixels
@@ -219,6 +225,11 @@ class DetectorConfig:
         incremental: with the ``grid`` backend, on a pixel window, keep the neighbour counts
             between slices and cluster only near dense pixels (same labels as re-clustering
             the whole window, which ``False`` does every slice).
+        group_edges: group the clusters of one robot (a plain shell is seen only through its
+            leading and trailing edges: two bars of opposite polarity one chassis length apart
+            along the motion) and place the robot by fitting its footprint (a box of the chassis
+            size) to the outline, instead of one detection per cluster at its event centroid.
+            ``False``: the detector before issue 19 (one detection per cluster).
     """
 
     chassis_m: float = 0.10
@@ -231,6 +242,7 @@ class DetectorConfig:
     min_anisotropy: float = 0.08
     backend: str = "grid"
     incremental: bool = True
+    group_edges: bool = True
 
     def validate(self) -> None:
         for name in ("chassis_m", "eps_chassis", "min_fill", "noise_false_rate", "min_area_chassis",
@@ -240,8 +252,9 @@ class DetectorConfig:
                 raise ValueError(f"detector {name} must be a positive number, got {val!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown DBSCAN backend {self.backend!r}; choose from {sorted(BACKENDS)}")
-        if not isinstance(self.incremental, bool):
-            raise ValueError(f"detector incremental must be true or false, got {self.incremental!r}")
+        for name in ("incremental", "group_edges"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"detector {name} must be true or false, got {getattr(self, name)!r}")
 
 
 def _poisson_quantile(lam: float, tail: float) -> int:
@@ -261,8 +274,8 @@ def _poisson_quantile(lam: float, tail: float) -> int:
 @njit(cache=True, nogil=True)
 def _cluster_moments(labels, pu, pv, cnt, st, st2, k):
     """Per cluster sums over its pixels' events: n, t, t2, x, y, xt, yt, x2, y2 and the
-    bounding box umin, umax, vmin, vmax (px; t in s from the window's origin)."""
-    s = np.zeros((k, 13))
+    bounding box umin, umax, vmin, vmax, and xy (px; t in s from the window's origin)."""
+    s = np.zeros((k, 14))
     for c in range(k):
         s[c, 9] = 1e18
         s[c, 11] = 1e18
@@ -288,6 +301,7 @@ def _cluster_moments(labels, pu, pv, cnt, st, st2, k):
         s[c, 10] = max(s[c, 10], x)
         s[c, 11] = min(s[c, 11], y)
         s[c, 12] = max(s[c, 12], y)
+        s[c, 13] += x * y * n
     return s
 
 
@@ -318,6 +332,86 @@ def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
         im[c] += w * zi
         nz[c] += w * r2
     return re, im, nz
+
+
+@njit(cache=True, nogil=True)
+def _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vu, vv, t_ev, cap, binw, tail):
+    """Extent of each group's outline along its axis (ax, ay) and across it, px, at the group's
+    time ``t_ev`` (s): every pixel is moved by the group's velocity (vu, vv px/s) from its mean
+    event time to ``t_ev``, so a moving edge's pixels gather where the edge is then. Pixels
+    count once, not by their events (the extent does not depend on the shell's contrast); the
+    ``tail`` fraction of a group's pixels is left out at either end (stray pixels), in bins of
+    ``binw`` px over at most ``cap`` px. Returns (ng, 4): a_lo, a_hi, l_lo, l_hi (px, in the
+    rotated frame a = x ax + y ay, l = y ax - x ay)."""
+    out = np.zeros((ng, 4))
+    amin = np.full(ng, 1e18)
+    amax = np.full(ng, -1e18)
+    lmin = np.full(ng, 1e18)
+    lmax = np.full(ng, -1e18)
+    npix = np.zeros(ng, dtype=np.int64)
+    m = glab.shape[0]
+    pa = np.empty(m)
+    pl = np.empty(m)
+    for j in range(m):
+        g = glab[j]
+        if g < 0:
+            continue
+        dt = t_ev[g] - st[j] / cnt[j]
+        x = pu[j] + vu[g] * dt
+        y = pv[j] + vv[g] * dt
+        a = x * ax[g] + y * ay[g]
+        lat = y * ax[g] - x * ay[g]
+        pa[j] = a
+        pl[j] = lat
+        amin[g] = min(amin[g], a)
+        amax[g] = max(amax[g], a)
+        lmin[g] = min(lmin[g], lat)
+        lmax[g] = max(lmax[g], lat)
+        npix[g] += 1
+    nmax = int(cap / binw) + 1
+    na = np.zeros(ng, dtype=np.int64)
+    nl = np.zeros(ng, dtype=np.int64)
+    oa = np.zeros(ng + 1, dtype=np.int64)
+    ol = np.zeros(ng + 1, dtype=np.int64)
+    for g in range(ng):
+        if npix[g] > 0:
+            na[g] = min(nmax, int((amax[g] - amin[g]) / binw) + 1)
+            nl[g] = min(nmax, int((lmax[g] - lmin[g]) / binw) + 1)
+        oa[g + 1] = oa[g] + na[g]
+        ol[g + 1] = ol[g] + nl[g]
+    ha = np.zeros(oa[ng], dtype=np.int64)
+    hl = np.zeros(ol[ng], dtype=np.int64)
+    for j in range(m):
+        g = glab[j]
+        if g < 0:
+            continue
+        ha[oa[g] + min(int((pa[j] - amin[g]) / binw), na[g] - 1)] += 1
+        hl[ol[g] + min(int((pl[j] - lmin[g]) / binw), nl[g] - 1)] += 1
+    for g in range(ng):
+        if npix[g] == 0:
+            continue
+        tol = int(tail * npix[g])
+        for axis in range(2):
+            if axis == 0:
+                hist = ha[oa[g]:oa[g + 1]]
+                lo0 = amin[g]
+            else:
+                hist = hl[ol[g]:ol[g + 1]]
+                lo0 = lmin[g]
+            nb = hist.shape[0]
+            q0 = 0
+            acc = hist[0]
+            while q0 < nb - 1 and acc <= tol:
+                q0 += 1
+                acc += hist[q0]
+            q1 = nb - 1
+            acc = hist[nb - 1]
+            while q1 > q0 and acc <= tol:
+                q1 -= 1
+                acc += hist[q1]
+            out[g, 2 * axis] = lo0 + q0 * binw
+            out[g, 2 * axis + 1] = lo0 + (q1 + 1) * binw
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -394,7 +488,7 @@ class Detector:
         pu, pv, _, ev_pix = self._pix(events["x"], events["y"], self.width, self.height)
         t_ref = int(events["t"][0])
         cnt, on, st, st2 = _pixel_stats(ev_pix, pu.size, events["t"], events["p"], t_ref)
-        return self.detect_pixels(pu, pv, cnt, st, st2, t_ref, t_end_us, hints)
+        return self.detect_pixels(pu, pv, cnt, st, st2, t_ref, t_end_us, hints, on=on)
 
     def detect_window(self, window, t_end_us: int, hints: np.ndarray | None = None) -> list[Detection]:
         """Detections from a :class:`tracker.accumulate.PixelWindow` ending at ``t_end_us`` (µs).
@@ -406,10 +500,10 @@ class Detector:
         if (self.config.incremental and self.config.backend == "grid" and hasattr(window, "attach")
                 and (window.width, window.height) == (self.width, self.height)):
             return self._detect_incremental(window, t_end_us, hints)
-        pu, pv, cnt, _, st, st2 = window.pixels()
+        pu, pv, cnt, on, st, st2 = window.pixels()
         if pu.size == 0:
             return []
-        return self.detect_pixels(pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints)
+        return self.detect_pixels(pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints, on=on)
 
     def _detect_incremental(self, window, t_end_us: int, hints: np.ndarray | None) -> list[Detection]:
         idx = window.index
@@ -428,19 +522,22 @@ class Detector:
         pv = pix // self.width
         labels = dbscan_from_cores(pu, pv, core, self.eps_px)
         cnt, st, st2 = window.slot_stats(slots)
-        return self._detections(labels, pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints)
+        # ON counts of the same slots (PixelWindow keeps them beside count/sum_t/sum_t2)
+        on = window._on[slots] if self.config.group_edges else None
+        return self._detections(labels, pu, pv, cnt, st, st2, window.t_ref_us, t_end_us, hints, on=on)
 
     def detect_pixels(self, pu, pv, cnt, st, st2, t_ref_us: int, t_end_us: int,
-                      hints: np.ndarray | None = None) -> list[Detection]:
+                      hints: np.ndarray | None = None, on=None) -> list[Detection]:
         """Detections from per-pixel statistics: pixel (u, v) px, event count, and sums of
-        event times and squared times (s from ``t_ref_us``)."""
+        event times and squared times (s from ``t_ref_us``); ``on``: ON events per pixel
+        (None: unknown, the edge grouping then ignores polarity)."""
         ms = self._min_samples(pu, pv)
         self.min_samples_ = ms
         labels = BACKENDS[self.config.backend](pu, pv, self.eps_px, ms)
-        return self._detections(labels, pu, pv, cnt, st, st2, t_ref_us, t_end_us, hints)
+        return self._detections(labels, pu, pv, cnt, st, st2, t_ref_us, t_end_us, hints, on=on)
 
     def _detections(self, labels, pu, pv, cnt, st, st2, t_ref_us: int, t_end_us: int,
-                    hints: np.ndarray | None) -> list[Detection]:
+                    hints: np.ndarray | None, on=None) -> list[Detection]:
         """Detections from DBSCAN labels of pixels (any subset holding every labelled pixel,
         in the window's order: the sums, hence the results, are the same)."""
         cfg = self.config
@@ -453,6 +550,8 @@ class Detector:
             if k2 != k:
                 k = k2
                 s = _cluster_moments(labels, pu, pv, cnt, st, st2, k)
+        if cfg.group_edges:
+            return self._grouped(labels, k, s, pu, pv, cnt, on, st, t_ref_us, t_end_us, hints)
         npx = np.bincount(labels[labels >= 0], minlength=k)
         order = 4 if 0.8 <= cfg.chassis_aspect <= 1.25 else 2
         n_safe = np.maximum(s[:, 0], 1.0)
@@ -508,13 +607,268 @@ class Detector:
                                   t_act_us=int(t_ref_us) + int(round(t_eval * 1e6))))
         return dets
 
+    # -- one robot, several clusters (issue 19) --------------------------------
+    def _group_clusters(self, k, tm, xm, ym, mom, onf, hints):
+        """Group id per cluster and, per group, the index of its hint (-1: none).
+
+        With predictions (``hints``, px): every cluster whose event centroid lies within one
+        chassis side of a prediction (a robot's parts lie within half its diagonal of its centre,
+        plus the prediction's error) joins its nearest prediction's group; two predictions are
+        never one group. The rest (a new robot's first windows, an edge just out of reach) pair
+        up as a leading and a trailing edge (:meth:`_edge_pair`), best pairs first: two free
+        clusters make a new group; a free cluster joins a prediction's group that holds one
+        cluster only."""
+        length = self.chassis_px
+        grp = np.full(k, -1, dtype=np.int64)
+        group_hint: list[int] = []
+        if hints is not None and len(hints):
+            d = np.hypot(xm[:, None] - hints[None, :, 0], ym[:, None] - hints[None, :, 1])
+            near = np.argmin(d, axis=1)
+            ok = d[np.arange(k), near] <= length
+            hint_group: dict[int, int] = {}
+            for c in np.nonzero(ok)[0].tolist():
+                h = int(near[c])
+                g = hint_group.get(h)
+                if g is None:
+                    g = hint_group[h] = len(group_hint)
+                    group_hint.append(h)
+                grp[c] = g
+        size = np.bincount(grp[grp >= 0], minlength=max(1, len(group_hint)))
+        # candidates: free clusters and the lone clusters of predictions' groups
+        pool = np.nonzero((grp < 0) | ((grp >= 0) & (size[np.maximum(grp, 0)] == 1)))[0]
+        if pool.size >= 2 and (grp[pool] < 0).any():
+            px, py = xm[pool], ym[pool]
+            d = np.hypot(px[:, None] - px[None, :], py[:, None] - py[None, :])
+            ia, ib = np.nonzero(np.triu(d <= 1.5 * length, 1))
+            cand = []
+            for a, b in zip(pool[ia].tolist(), pool[ib].tolist()):
+                if grp[a] >= 0 and grp[b] >= 0:
+                    continue   # two predictions are two robots
+                score = self._edge_pair(a, b, tm, xm, ym, mom, onf)
+                if score is not None:
+                    cand.append((score, a, b))
+            cand.sort()
+            used = set()
+            for _, a, b in cand:
+                if a in used or b in used:
+                    continue
+                used.update((a, b))
+                if grp[a] < 0 and grp[b] < 0:
+                    grp[a] = grp[b] = len(group_hint)
+                    group_hint.append(-1)
+                elif grp[a] < 0:
+                    grp[a] = grp[b]
+                else:
+                    grp[b] = grp[a]
+        for c in np.nonzero(grp < 0)[0].tolist():
+            grp[c] = len(group_hint)
+            group_hint.append(-1)
+        return grp, group_hint
+
+    def _edge_pair(self, a, b, tm, xm, ym, mom, onf):
+        """How well clusters ``a`` and ``b`` make the leading and trailing edges of one plain
+        shell (smaller is better; None: they do not). The edges of a chassis of length L are
+        two bars about L apart (their event centroids are the edges at the mean time), each
+        elongated across the line between them (an edge, not a blob), of opposite polarities
+        (the shell darker or brighter than the mat at both) unless one is mixed. Event times
+        are not used: a sensor's timestamps can skew along a row or column, and a robot that
+        starts gives only a short, poorly fitted motion."""
+        n, cxt, cyt, ctt, cxx, cyy, cxy = mom
+        length = self.chassis_px
+        fa, fb = onf[a], onf[b]
+        if abs(fa - 0.5) > 0.25 and abs(fb - 0.5) > 0.25 and (fa > 0.5) == (fb > 0.5):
+            return None
+        dx = xm[a] - xm[b]
+        dy = ym[a] - ym[b]
+        dd = math.hypot(dx, dy)
+        if abs(dd - length) > 0.35 * length:
+            return None
+        ux, uy = dx / dd, dy / dd
+        worst = 0.0
+        for c in (a, b):
+            v_along = ux * ux * cxx[c] + uy * uy * cyy[c] + 2 * ux * uy * cxy[c]
+            v_across = uy * uy * cxx[c] + ux * ux * cyy[c] - 2 * ux * uy * cxy[c]
+            if not v_across >= 2.0 * v_along:
+                return None
+            worst = max(worst, v_along / v_across)
+        return abs(dd - length) / length + worst
+
+    def _grouped(self, labels, k, s, pu, pv, cnt, on, st, t_ref_us: int, t_end_us: int,
+                 hints) -> list[Detection]:
+        """Detections of grouped clusters (``group_edges``), placed by a footprint fit."""
+        cfg = self.config
+        length = self.chassis_px
+        width = self.chassis_px / cfg.chassis_aspect
+        n = np.maximum(s[:, 0], 1.0)
+        tm = s[:, 1] / n
+        xm = s[:, 3] / n
+        ym = s[:, 4] / n
+        # per cluster centred sums (event-weighted): the within-cluster motion fit
+        cxt = s[:, 5] - n * xm * tm
+        cyt = s[:, 6] - n * ym * tm
+        ctt = np.maximum(s[:, 2] - n * tm * tm, 0.0)
+        cxx = np.maximum(s[:, 7] - n * xm * xm, 0.0)
+        cyy = np.maximum(s[:, 8] - n * ym * ym, 0.0)
+        cxy = s[:, 13] - n * xm * ym
+        valid = labels >= 0
+        if on is not None:
+            onf = np.bincount(labels[valid], weights=on[valid], minlength=k) / n
+        else:
+            onf = np.full(k, 0.5)
+        h = None if hints is None or not len(hints) else np.asarray(hints, dtype=float).reshape(-1, 2)
+        grp, group_hint = self._group_clusters(k, tm, xm, ym, (n, cxt, cyt, ctt, cxx, cyy, cxy), onf, h)
+        ng = len(group_hint)
+        gs = np.zeros((ng, 9))
+        np.add.at(gs, grp, s[:, :9])
+        gxt = np.bincount(grp, weights=cxt, minlength=ng)
+        gyt = np.bincount(grp, weights=cyt, minlength=ng)
+        gtt = np.bincount(grp, weights=ctt, minlength=ng)
+        gxx = np.bincount(grp, weights=cxx, minlength=ng)
+        gyy = np.bincount(grp, weights=cyy, minlength=ng)
+        parts = np.bincount(grp, minlength=ng)
+        glab = np.where(valid, grp[np.maximum(labels, 0)], -1)
+        npx = np.bincount(glab[valid], minlength=ng)
+        t_end_rel = (int(t_end_us) - int(t_ref_us)) * 1e-6
+        ppm = self.px_per_m
+        min_speed = cfg.min_speed_mps * ppm
+        gn = np.maximum(gs[:, 0], 1.0)
+        gtm = gs[:, 1] / gn
+        gvt = np.maximum(gs[:, 2] / gn - gtm * gtm, 0.0)
+        gxy = np.bincount(grp, weights=cxy, minlength=ng)
+        # polarity centroids of each group: a plain shell's OFF and ON edges lie along the motion
+        w_on = on[valid].astype(float) if on is not None else None
+        if w_on is not None:
+            lv = glab[valid]
+            on_n = np.bincount(lv, weights=w_on, minlength=ng)
+            on_x = np.bincount(lv, weights=w_on * pu[valid], minlength=ng)
+            on_y = np.bincount(lv, weights=w_on * pv[valid], minlength=ng)
+        bx = np.zeros(ng)
+        by = np.zeros(ng)
+        sig = np.full(ng, math.nan)
+        t_eval = np.full(ng, t_end_rel)
+        ax = np.ones(ng)
+        ay = np.zeros(ng)
+        along_axis = np.zeros(ng, dtype=np.bool_)   # axis from the outline, not the velocity
+        moving = np.zeros(ng, dtype=np.bool_)
+        vel = np.zeros((ng, 2))
+        for g in range(ng):
+            if gtt[g] > 1e-12:
+                bx[g] = gxt[g] / gtt[g]
+                by[g] = gyt[g] / gtt[g]
+                res = max((gxx[g] + gyy[g] - bx[g] * gxt[g] - by[g] * gyt[g]) / gn[g], 1e-9)
+                sig[g] = math.sqrt(res / gtt[g])
+                # activity end: mean + sqrt(3) sd is the end of a uniform interval;
+                # a robot that stopped inside the window stays where it stopped
+                t_eval[g] = min(t_end_rel, gtm[g] + math.sqrt(3.0 * gvt[g]))
+            # the motion axis: the line from the ON to the OFF centroid when they are apart
+            # (two edges), else the short axis of an elongated part (an edge lies across the
+            # motion), else the velocity; the velocity only orients it (timestamps can skew)
+            got = False
+            if w_on is not None and 0 < on_n[g] < gs[g, 0]:
+                n_off = gs[g, 0] - on_n[g]
+                dx = (gs[g, 3] - on_x[g]) / n_off - on_x[g] / on_n[g]
+                dy = (gs[g, 4] - on_y[g]) / n_off - on_y[g] / on_n[g]
+                dd = math.hypot(dx, dy)
+                if dd >= 0.5 * length:
+                    ax[g], ay[g], got = dx / dd, dy / dd, True
+            if not got:
+                # eigenvectors of the pooled within-part covariance
+                a_, b_, c_ = gxx[g], gxy[g], gyy[g]
+                tr = a_ + c_
+                disc = math.sqrt(max(0.25 * (a_ - c_) ** 2 + b_ * b_, 0.0))
+                lmin, lmax = 0.5 * tr - disc, 0.5 * tr + disc
+                if lmax > 0 and lmax >= 3.0 * max(lmin, 0.0):
+                    # minor axis: eigenvector of lmin
+                    ex, ey = (b_, lmin - a_) if abs(b_) > 1e-12 else ((1.0, 0.0) if a_ <= c_ else (0.0, 1.0))
+                    en = math.hypot(ex, ey)
+                    ax[g], ay[g], got = ex / en, ey / en, True
+            if got:
+                along_axis[g] = True
+                va = bx[g] * ax[g] + by[g] * ay[g]
+                if va < 0:
+                    ax[g], ay[g], va = -ax[g], -ay[g], -va
+                moving[g] = not math.isnan(sig[g]) and va > min_speed and va > 3.0 * sig[g]
+                if moving[g]:
+                    vel[g] = va * ax[g], va * ay[g]
+            else:
+                sp = math.hypot(bx[g], by[g])
+                moving[g] = not math.isnan(sig[g]) and sp > min_speed and sp > 3.0 * sig[g]
+                if moving[g]:
+                    ax[g], ay[g] = bx[g] / sp, by[g] / sp
+                    vel[g] = bx[g], by[g]
+        fit = _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vel[:, 0].copy(), vel[:, 1].copy(),
+                              t_eval, 4.0 * (length + width), 0.5, 0.02)
+        order = 4 if 0.8 <= cfg.chassis_aspect <= 1.25 else 2
+        h_re, h_im, h_n = _cluster_harmonic(glab, pu, pv, cnt, gs[:, 3] / gn, gs[:, 4] / gn, order, ng)
+        min_area = cfg.min_area_chassis * self.chassis_px ** 2
+        dets = []
+        for g in range(ng):
+            nev = gs[g, 0]
+            if npx[g] < min_area or nev < 3:
+                continue
+            a_lo, a_hi, l_lo, l_hi = fit[g]
+            # both edges (or a filled footprint): as long as most of a chassis, and wide
+            whole = a_hi - a_lo >= 0.6 * length and l_hi - l_lo >= 0.5 * width
+            xg = gs[g, 3] / gn[g]
+            yg = gs[g, 4] / gn[g]
+            if parts[g] == 1 and whole and not along_axis[g]:
+                # one filled cluster (a marked or textured robot): the event fit at activity end
+                if gtt[g] > 1e-12:
+                    u = xg + bx[g] * (t_eval[g] - gtm[g])
+                    v = yg + by[g] * (t_eval[g] - gtm[g])
+                else:
+                    u, v = xg, yg
+            else:
+                # the outline's middle: between the leading and the trailing edge
+                a_c = 0.5 * (a_lo + a_hi)
+                hi = group_hint[g]
+                if not whole and hi >= 0 and along_axis[g]:
+                    # a lone edge: the robot lies half a chassis behind it (a leading edge)
+                    # or ahead of it (a trailing one), whichever is nearer the prediction
+                    a_h = h[hi, 0] * ax[g] + h[hi, 1] * ay[g]
+                    back, ahead = a_hi - 0.5 * length, a_lo + 0.5 * length
+                    a_c = back if abs(a_h - back) <= abs(a_h - ahead) else ahead
+                l_c = 0.5 * (l_lo + l_hi)
+                u = a_c * ax[g] - l_c * ay[g]
+                v = a_c * ay[g] + l_c * ax[g]
+            u = min(max(u, 0.0), self.width - 1.0)
+            v = min(max(v, 0.0), self.height - 1.0)
+            du = dv = math.nan
+            if gtt[g] > 1e-12:
+                # along the outline's axis when it gives one (the fit across it is timing skew)
+                if along_axis[g]:
+                    va = bx[g] * ax[g] + by[g] * ay[g]
+                    du, dv = va * ax[g], va * ay[g]
+                else:
+                    du, dv = bx[g], by[g]
+            heading, src = math.nan, ""
+            if moving[g]:
+                heading, src = math.atan2(ay[g], ax[g]), "motion"
+            axis = math.nan
+            if whole and h_n[g] > 0 and math.hypot(h_re[g], h_im[g]) >= cfg.min_anisotropy * h_n[g]:
+                axis = math.atan2(h_im[g], h_re[g]) / order
+                if order == 4:
+                    axis -= math.pi / 4   # the 4th harmonic points at the corners
+            radius = math.sqrt(max(gs[g, 7] / gn[g] - xg * xg + gs[g, 8] / gn[g] - yg * yg, 0.0))
+            dets.append(Detection(u=u, v=v, t_us=int(t_end_us), n_events=int(nev), n_pixels=int(npx[g]),
+                                  du=du, dv=dv, speed_sigma=float(sig[g]), heading=heading, heading_source=src,
+                                  radius=radius, t_vel_us=int(t_ref_us) + int(round(gtm[g] * 1e6)),
+                                  shape_axis=axis, shape_order=order,
+                                  t_act_us=int(t_ref_us) + int(round(t_eval[g] * 1e6)),
+                                  whole=bool(whole), n_parts=int(parts[g])))
+        return dets
+
     def _split(self, labels, k, s, pu, pv, hints):
         """Give each cluster holding >= 2 hints (px) one part per hint (nearest-seed
         assignment refined by two centroid updates). Returns (labels, k)."""
         near = 0.5 * self.chassis_px
+        # how far a prediction may lie from a cluster of its robot: half a chassis when the
+        # cluster fills the robot; with edge grouping, a cluster may be one edge bar, half a
+        # chassis from the centre, plus the prediction's error (a quarter chassis)
+        reach = 0.75 * self.chassis_px if self.config.group_edges else near
         hu, hv = hints[:, :1], hints[:, 1:2]
         # hint h near cluster c's box, in the order of h then c (which numbers the new parts)
-        box = (s[:, 9] - near <= hu) & (hu <= s[:, 10] + near) & (s[:, 11] - near <= hv) & (hv <= s[:, 12] + near)
+        box = (s[:, 9] - reach <= hu) & (hu <= s[:, 10] + reach) & (s[:, 11] - reach <= hv) & (hv <= s[:, 12] + reach)
         inside: dict[int, list[int]] = {}
         for h, c in zip(*(a.tolist() for a in np.nonzero(box))):
             inside.setdefault(c, []).append(h)
@@ -528,7 +882,7 @@ class Detector:
             if len(hs) < 2:
                 continue
             sel = by_label[first[c]:first[c + 1]]
-            part, n_parts = _split_cluster(pu[sel].astype(float), pv[sel].astype(float), hints[hs], near)
+            part, n_parts = _split_cluster(pu[sel].astype(float), pv[sel].astype(float), hints[hs], near, reach)
             if n_parts < 2:
                 continue
             if out is None:
@@ -540,16 +894,16 @@ class Detector:
 
 
 @njit(cache=True, nogil=True)
-def _split_cluster(x, y, hints, near):
+def _split_cluster(x, y, hints, near, reach):
     """One cluster's pixels (x, y px) split between the hints (k, 2) px: the hints with a pixel
-    within ``near`` px are the seeds; unless there are fewer than two, or all lie within
+    within ``reach`` px are the seeds; unless there are fewer than two, or all lie within
     ``near`` of each other (one robot), each pixel goes to its nearest seed, seeds moved to
     their parts' centroids three times. Returns the part of each pixel and the number of
     parts (seeds), 0 when the cluster is not split. (Sums of integer pixel coordinates are exact, so this equals
     the same steps in numpy, bit for bit.)"""
     n = x.shape[0]
     m = hints.shape[0]
-    near2 = near * near
+    reach2 = reach * reach
     seeds = np.empty((m, 2))
     ns = 0
     for q in range(m):
@@ -560,7 +914,7 @@ def _split_cluster(x, y, hints, near):
             d = dx * dx + dy * dy
             if d < best:
                 best = d
-        if best <= near2:
+        if best <= reach2:
             seeds[ns, 0] = hints[q, 0]
             seeds[ns, 1] = hints[q, 1]
             ns += 1

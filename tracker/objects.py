@@ -34,6 +34,11 @@ class Observation:
         shape_order: rotational symmetry of the footprint (4: square, 2: rectangle).
         t_act_us: end of the cluster's activity, µs (None: ``t_us``); well before ``t_us``
             when the robot stopped inside the window (no events since: it is at rest).
+        whole: True when the detection covers the whole robot: its leading and trailing edges
+            grouped (a plain shell shows only those), or one filled cluster as long and wide as
+            the chassis. False for a part: a lone edge bar (the robot placed half a chassis
+            behind or ahead of it, by the prediction) or a sparse cluster; its position is less
+            certain and ``shape_yaw`` is NaN. Default True (the behaviour before the field).
     """
 
     x: float
@@ -51,6 +56,7 @@ class Observation:
     shape_yaw: float = math.nan
     shape_order: int = 4
     t_act_us: int | None = None
+    whole: bool = True
 
 
 @dataclass
