@@ -578,7 +578,13 @@ def seq_gap(prev: int, seq: int) -> int:
 
 
 class Unwrapper:
-    """Extend a wrapping counter (e.g. 32-bit µs clock, 16-bit seq) to a monotonic int."""
+    """Extend a wrapping counter (e.g. 32-bit µs clock, 16-bit seq) to a monotonic int.
+
+    A step back by more than half the range is taken as a wrap forward, a step forward by more
+    than half the range as a step back over an earlier wrap -- but only if there was one: before
+    the first wrap it is a forward jump (a link silent for more than half the range while the
+    robot ran on), so the result is never negative (it goes into ``seq`` and ``robot_time_us``
+    of published telemetry, which are >= 0)."""
 
     def __init__(self, bits: int):
         self._mod = 1 << bits
@@ -591,7 +597,7 @@ class Unwrapper:
             delta = value - self._last
             if delta < -self._half:
                 self._offset += self._mod
-            elif delta > self._half:
+            elif delta > self._half and self._offset >= self._mod:
                 self._offset -= self._mod
         self._last = value
         return value + self._offset
