@@ -126,10 +126,10 @@ def _clamp01(x):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _cover(x, y, x0, x1, y0, y1, pix):
-    """Area fraction of a pixel (side ``pix``, centred at x, y) inside the rectangle."""
-    return (_clamp01(min(x - x0, x1 - x) / pix + 0.5)
-            * _clamp01(min(y - y0, y1 - y) / pix + 0.5))
+def _cover(x, y, x0, x1, y0, y1, ipix):
+    """Area fraction of a pixel (side ``1 / ipix``, centred at x, y) inside the rectangle."""
+    return (_clamp01(min(x - x0, x1 - x) * ipix + 0.5)
+            * _clamp01(min(y - y0, y1 - y) * ipix + 0.5))
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -156,11 +156,10 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
         s = state[i, 3]
         bx = c * dx + s * dy
         by = -s * dx + c * dy
+        if bx < state[i, 7] or bx > state[i, 8] or by < state[i, 9] or by > state[i, 10]:
+            continue        # outside what the robot (its parallax hull, shadow) can touch
         hl = rp[i, 0]
         hw = rp[i, 1]
-        reach = state[i, 6]
-        if abs(bx) > hl + reach or abs(by) > hw + reach:
-            continue
         rx = (state[i, 4] - bx) * inv_h
         ry = (state[i, 5] - by) * inv_h
         sw = rp[i, 8]
@@ -172,6 +171,10 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
                 q = 1.0 - d / sw
                 refl *= 1.0 - rp[i, 7] * q * q
         nb = int(rp[i, 11])
+        ipix = 1.0 / pix_m
+        hp = 0.5 * pix_m
+        irx = 1.0 / rx if rx != 0.0 else 0.0
+        iry = 1.0 / ry if ry != 0.0 else 0.0
         k = 0
         for q in range(nb):
             x0 = bodies[i, q, 0]
@@ -181,16 +184,16 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
             zt = bodies[i, q, 4]
             tx = bx + rx * zt       # the ray at the box's top
             ty = by + ry * zt
-            hp = 0.5 * pix_m
             if ((tx < x0 - hp and bx < x0 - hp) or (tx > x1 + hp and bx > x1 + hp)
                     or (ty < y0 - hp and by < y0 - hp) or (ty > y1 + hp and by > y1 + hp)):
                 continue        # the ray passes beside the box from its top to the mats
-            ct = _cover(tx, ty, x0, x1, y0, y1, pix_m)
-            if flat:
+            ct = _cover(tx, ty, x0, x1, y0, y1, ipix)
+            if flat or ct >= 1.0:
+                # (3-D: the ray is inside the box at its top, so it enters there)
                 alpha = ct
                 ze = zt
             else:
-                cf = _cover(bx, by, x0, x1, y0, y1, pix_m)      # at the foot
+                cf = _cover(bx, by, x0, x1, y0, y1, ipix)      # at the foot
                 alpha = max(ct, cf)
                 ze = zt if ct >= cf else 0.0
                 if alpha < 1.0:
@@ -209,7 +212,7 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
                     den = mx1 - my1
                     if den != 0.0:
                         zc = min(max((my0 - mx0) / den, 0.0), zt)
-                        cc = _cover(bx + rx * zc, by + ry * zc, x0, x1, y0, y1, pix_m)
+                        cc = _cover(bx + rx * zc, by + ry * zc, x0, x1, y0, y1, ipix)
                         if cc > alpha:
                             alpha = cc
                             ze = zc
@@ -217,15 +220,15 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
                 lo = 0.0
                 hi = zt
                 if rx != 0.0:
-                    za = (x0 - bx) / rx
-                    zb = (x1 - bx) / rx
+                    za = (x0 - bx) * irx
+                    zb = (x1 - bx) * irx
                     lo = max(lo, min(za, zb))
                     hi = min(hi, max(za, zb))
                 elif bx < x0 or bx > x1:
                     hi = -1.0
                 if ry != 0.0:
-                    za = (y0 - by) / ry
-                    zb = (y1 - by) / ry
+                    za = (y0 - by) * iry
+                    zb = (y1 - by) * iry
                     lo = max(lo, min(za, zb))
                     hi = min(hi, max(za, zb))
                 elif by < y0 or by > y1:
@@ -245,10 +248,10 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
                     rim = rp[i, 5]
                     if rim > 0.0:
                         e = min(tx - x0, min(y1 - ty, ty - y0))
-                        top += (rp[i, 9] - top) * _clamp01((rim - e) / pix_m + 0.5)
+                        top += (rp[i, 9] - top) * _clamp01((rim - e) * ipix + 0.5)
                     win = rp[i, 4]
                     if win > 0.0:
-                        top += (rp[i, 10] - top) * _clamp01((tx - (x1 - win)) / pix_m + 0.5)
+                        top += (rp[i, 10] - top) * _clamp01((tx - (x1 - win)) * ipix + 0.5)
             wall = bodies[i, q, 6]
             if alpha > ct and bodies[i, q, 7] != wall and bx + rx * ze > x1 - 5e-4:
                 wall = bodies[i, q, 7]      # the front wall
@@ -272,6 +275,111 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
             trans *= 1.0 - scr[p, 1]
         refl = acc + trans * refl
     return refl
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _robot_hull(state, r, rp, inv_h, pix_m, hom, quad):
+    """The robot-frame rectangle (``state[r, 7:11]``: x0, x1, y0, y1) of mat points whose
+    pixel ray can meet robot r or its contact shadow, and its corners in pixels (``quad[r]``).
+
+    A ray through mat point ``b`` is at ``b + (nadir - b) * z / h`` at height z: it meets the
+    body (inside the footprint, below its top ``zt``) only if ``b`` lies in the hull of the
+    footprint and the footprint scaled about the nadir by ``h / (h - zt)``; the contact shadow
+    reaches ``rp[r, 8]`` beyond the footprint; one pixel more for the area-weighted edges.
+    """
+    hl = rp[r, 0]
+    hw = rp[r, 1]
+    k = rp[r, 2] * inv_h
+    sw = rp[r, 8]
+    nx = state[r, 4]
+    ny = state[r, 5]
+    state[r, 7] = min(-hl - sw, (-hl - nx * k) / (1.0 - k)) - pix_m
+    state[r, 8] = max(hl + sw, (hl - nx * k) / (1.0 - k)) + pix_m
+    state[r, 9] = min(-hw - sw, (-hw - ny * k) / (1.0 - k)) - pix_m
+    state[r, 10] = max(hw + sw, (hw - ny * k) / (1.0 - k)) + pix_m
+    c = state[r, 2]
+    s = state[r, 3]
+    for q in range(4):
+        bx = state[r, 7] if q == 0 or q == 3 else state[r, 8]
+        by = state[r, 9] if q < 2 else state[r, 10]
+        xa = state[r, 0] + c * bx - s * by
+        ya = state[r, 1] + s * bx + c * by
+        w_ = hom[2, 0] * xa + hom[2, 1] * ya + hom[2, 2]
+        quad[r, q, 0] = (hom[0, 0] * xa + hom[0, 1] * ya + hom[0, 2]) / w_
+        quad[r, q, 1] = (hom[1, 0] * xa + hom[1, 1] * ya + hom[1, 2]) / w_
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _row_span(quad, r, v):
+    """Columns (lo, hi) of row ``v`` inside the convex quadrilateral ``quad[r]`` (corners in
+    order) widened by a pixel; lo > hi when the row misses it."""
+    y0 = v - 1.0
+    y1 = v + 1.0
+    umin = 1e18
+    umax = -1e18
+    for e in range(4):
+        pu = quad[r, e, 0]
+        pv = quad[r, e, 1]
+        qu = quad[r, (e + 1) % 4, 0]
+        qv = quad[r, (e + 1) % 4, 1]
+        # clip the edge to the band y0 <= v <= y1
+        t0 = 0.0
+        t1 = 1.0
+        dv = qv - pv
+        if dv != 0.0:
+            ta = (y0 - pv) / dv
+            tb = (y1 - pv) / dv
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+        elif pv < y0 or pv > y1:
+            continue
+        if t0 <= t1:
+            ua = pu + (qu - pu) * t0
+            ub = pu + (qu - pu) * t1
+            umin = min(umin, min(ua, ub))
+            umax = max(umax, max(ua, ub))
+    if umin > umax:
+        return 1, 0
+    return int(math.floor(umin)) - 1, int(math.ceil(umax)) + 1
+
+
+@njit(cache=True, nogil=True)
+def _alias_table(w):
+    """Vose's alias table of the weights ``w`` (n,): draw ``i`` uniform in 0..n-1, keep it
+    with probability ``prob[i]``, else take ``alias[i]``; gives i with probability w_i / sum."""
+    n = w.shape[0]
+    prob = np.ones(n, dtype=np.float32)
+    alias = np.arange(n).astype(np.int64)
+    total = 0.0
+    for i in range(n):
+        total += w[i]
+    if total <= 0.0:
+        return prob, alias
+    q = np.empty(n)
+    small = np.empty(n, dtype=np.int64)
+    large = np.empty(n, dtype=np.int64)
+    ns = 0
+    nl = 0
+    for i in range(n):
+        q[i] = w[i] * n / total
+        if q[i] < 1.0:
+            small[ns] = i
+            ns += 1
+        else:
+            large[nl] = i
+            nl += 1
+    while ns > 0 and nl > 0:
+        ns -= 1
+        a = small[ns]
+        g = large[nl - 1]
+        prob[a] = q[a]
+        alias[a] = g
+        q[g] = (q[g] + q[a]) - 1.0
+        if q[g] < 1.0:
+            nl -= 1
+            small[ns] = g
+            ns += 1
+    return prob, alias
 
 
 @njit(cache=True, nogil=True)
@@ -315,13 +423,14 @@ def _merge_boxes(boxes, owner):
     return m
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+# fast-math without nnan/ninf (NaN checks stay valid): reciprocal and contracted arithmetic
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width, height,
                hom, nadir_x, nadir_y, cam_h, flat, gain, ax, ay, bg, bg_log, rp, bodies, markers,
                pix_m, illum_seq, dark, cutoff_hz,
                min_cutoff_hz, lmem, llp, thr_on, thr_off, t_last, refr_us, max_refr_count,
                init, ox, oy, op, ot, last_refl, last_target, last_alpha, bg_alpha, std_dt_us,
-               settled, prev_pose):
+               settled, prev_pose, quad):
     """Run the pixel model over the steps ``t_seq`` (µs, increasing, after ``t_start``).
 
     ``poses`` (k, n, 3) are the robot poses at each step, ``cur_boxes`` (k, n, 4) their
@@ -334,10 +443,11 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     K = hist.shape[1]
     cap = ox.shape[0]
     n = np.int64(0)     # not a literal 0: numba would compile _sort_segment once per literal
-    state = np.zeros((max(n_rob, 1), 7))
+    state = np.zeros((max(n_rob, 1), 11))
     scr = np.zeros((8, 3))
     inv_h = 1.0 / cam_h
-    tight = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
+    pquad = np.zeros((max(n_rob, 1), 4, 2))
+    rspan = np.zeros((max(n_rob, 1), 4), dtype=np.int64)    # this row: near lo, hi, moving lo, hi
     moved = np.zeros(max(n_rob, 1), dtype=np.bool_)
     boxes = np.zeros((max(n_rob, 1), 4), dtype=np.int64)
     owner = np.zeros(max(n_rob, 1), dtype=np.int64)
@@ -364,28 +474,14 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
             ey = nadir_y - state[r, 1]
             state[r, 4] = state[r, 2] * ex + state[r, 3] * ey
             state[r, 5] = -state[r, 3] * ex + state[r, 2] * ey
-            zt = rp[r, 2]
-            reach = (rp[r, 8] + zt / (cam_h - zt) * (math.hypot(ex, ey) + math.hypot(rp[r, 0], rp[r, 1]))
-                     + pix_m)
-            state[r, 6] = reach
-            # tight pixel box of that reach (its 4 corners through the homography) + 2 px
-            tight[r, 0] = width
-            tight[r, 1] = height
-            tight[r, 2] = -1
-            tight[r, 3] = -1
-            for cx_ in (-1.0, 1.0):
-                for cy_ in (-1.0, 1.0):
-                    bx = cx_ * (rp[r, 0] + reach)
-                    by = cy_ * (rp[r, 1] + reach)
-                    xa = state[r, 0] + state[r, 2] * bx - state[r, 3] * by
-                    ya = state[r, 1] + state[r, 3] * bx + state[r, 2] * by
-                    w_ = hom[2, 0] * xa + hom[2, 1] * ya + hom[2, 2]
-                    pu = (hom[0, 0] * xa + hom[0, 1] * ya + hom[0, 2]) / w_
-                    pv = (hom[1, 0] * xa + hom[1, 1] * ya + hom[1, 2]) / w_
-                    tight[r, 0] = min(tight[r, 0], int(math.floor(pu)) - 2)
-                    tight[r, 1] = min(tight[r, 1], int(math.floor(pv)) - 2)
-                    tight[r, 2] = max(tight[r, 2], int(math.ceil(pu)) + 2)
-                    tight[r, 3] = max(tight[r, 3], int(math.ceil(pv)) + 2)
+            for c in range(4):      # the previous step's hull (pixels it leaves change too)
+                pquad[r, c, 0] = quad[r, c, 0]
+                pquad[r, c, 1] = quad[r, c, 1]
+            _robot_hull(state, r, rp, inv_h, pix_m, hom, quad)
+            if math.isnan(pquad[r, 0, 0]):
+                for c in range(4):
+                    pquad[r, c, 0] = quad[r, c, 0]
+                    pquad[r, c, 1] = quad[r, c, 1]
         if full_frame or init:
             m = 1
             boxes[0, 0] = 0
@@ -436,16 +532,33 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
             mem = members[b]
             nm = n_members[b]
             for v in range(boxes[b, 1], boxes[b, 3]):
+                # per robot, the pixels of this row inside its hull (near) and, if it moved,
+                # inside its hull now or at the last step (near_moving)
+                for j in range(nm):
+                    r = mem[j]
+                    lo, hi = _row_span(quad, r, v)
+                    rspan[r, 0] = lo
+                    rspan[r, 1] = hi
+                    if moved[r]:
+                        lo2, hi2 = _row_span(pquad, r, v)
+                        if lo2 <= hi2:
+                            lo = min(lo, lo2)
+                            hi = max(hi, hi2)
+                        rspan[r, 2] = lo
+                        rspan[r, 3] = hi
+                    else:
+                        rspan[r, 2] = 1
+                        rspan[r, 3] = 0
                 for u in range(boxes[b, 0], boxes[b, 2]):
-                    near = False        # inside some robot's footprint box
-                    near_moving = False  # ... of a robot that moved this step
+                    near = False        # inside some robot's hull
+                    near_moving = False  # ... or its last one, of a robot that moved this step
                     for j in range(nm):
                         r = mem[j]
-                        if tight[r, 0] <= u <= tight[r, 2] and tight[r, 1] <= v <= tight[r, 3]:
+                        if rspan[r, 0] <= u <= rspan[r, 1]:
                             near = True
-                            if moved[r]:
-                                near_moving = True
-                                break
+                        if rspan[r, 2] <= u <= rspan[r, 3]:
+                            near_moving = True
+                            break
                     if static_light and not near_moving and settled[v, u] and not init:
                         continue            # nothing changes here: skip the pixel
                     if near:
@@ -619,6 +732,9 @@ class DvsSensor:
         # 1 = pixel at rest (low-pass settled, no event owed): skipped unless a robot moves near
         self._settled = np.ones((h, w), dtype=np.uint8)
         self._prev_pose = np.full((max(len(robots), 1), 3), np.nan)
+        # each robot's hull (what it can change: parallax hull of its body, contact shadow)
+        # in pixels at the last step: 4 corners (u, v); NaN = none yet
+        self._quad = np.full((max(len(robots), 1), 4, 2), np.nan)
         hot = rng.choice(h * w, size=min(p.hot_pixels, h * w), replace=False)
         #: hot pixel addresses (k, 2): u, v
         self.hot_pixels = np.column_stack([hot % w, hot // w]).astype(np.int64)
@@ -664,7 +780,11 @@ class DvsSensor:
         #: mean background + leak event rate of the whole sensor, Hz
         self.background_rate_hz = float(total.sum())
         self._noise_cdf = np.cumsum(total.ravel())
-        self._noise_p_on = (p.noise_on_fraction * ba + leak).ravel() / np.maximum(total.ravel(), 1e-300)
+        self._noise_p_on = ((p.noise_on_fraction * ba + leak).ravel()
+                            / np.maximum(total.ravel(), 1e-300)).astype(np.float32)
+        # Walker/Vose alias table of the per-pixel rates: a pixel in O(1) per event (two
+        # gathers) instead of a binary search of the cumulative rates (cache misses)
+        self._alias_prob, self._alias_idx = _alias_table(total.ravel())
         self._hist = np.zeros((self._n, self._keep_steps, 4), dtype=np.int64)
         self._hist_i = 0
         self._buf = self._alloc(1 << 16)
@@ -679,6 +799,7 @@ class DvsSensor:
         self._llp[:] = self._bg_log
         self._lmem[:] = self._bg_log
         self._t_last[:] = -(10 ** 12)
+        self._quad[:] = np.nan
         self._hist[:] = self._robot_boxes(poses)[0][:, None, :]
         self._hist_i = 0
         self._kernel(poses, np.array([int(t_us)], np.int64), int(t_us), init=True)
@@ -762,7 +883,7 @@ class DvsSensor:
                 p.dark_current, p.cutoff_hz, p.min_cutoff_hz, self._lmem, self._llp,
                 self._thr_on, self._thr_off, self._t_last, int(p.refractory_us), int(max_count),
                 init, ox, oy, op, ot, self._last_refl, self._last_target, self._last_alpha,
-                self._bg_alpha, int(p.step_us), self._settled, self._prev_pose)
+                self._bg_alpha, int(p.step_us), self._settled, self._prev_pose, self._quad)
             out.append((ox[:n].copy(), oy[:n].copy(), op[:n].copy(), ot[:n].copy()))
             if done == len(t_seq):
                 break
@@ -781,19 +902,25 @@ class DvsSensor:
         columns (x, y, p, t)."""
         rng = self._rng
         k = int(rng.poisson(self.background_rate_hz * dt * 1e-6))
+        npx = len(self._alias_idx)
         if k:
-            pix = np.minimum(np.searchsorted(self._noise_cdf, rng.random(k) * self._noise_cdf[-1],
-                                             side="right"), len(self._noise_cdf) - 1)
-            pol_bg = rng.random(k) < self._noise_p_on[pix]
+            pix = rng.integers(0, npx, k)
+            pix = np.where(rng.random(k, dtype=np.float32) < self._alias_prob[pix], pix,
+                           self._alias_idx[pix])
+            pol_bg = rng.random(k, dtype=np.float32) < self._noise_p_on[pix]
         else:
             pix, pol_bg = np.zeros(0, np.int64), np.zeros(0, bool)
         hot = self.hot_pixels
         kh = rng.poisson(self.params.hot_rate_hz * dt * 1e-6, len(hot))
         which = np.repeat(np.arange(len(hot)), kh)
         idx = np.concatenate([pix, hot[which, 1] * self.width + hot[which, 0]])
-        pol = np.concatenate([pol_bg, rng.integers(0, 2, len(which)).astype(bool)]).astype(np.uint8)
-        t = t0 + 1 + rng.integers(0, dt, len(idx))
-        order = np.argsort(t, kind="stable")
-        idx, pol, t = idx[order], pol[order], t[order]
+        pol = np.concatenate([pol_bg, rng.integers(0, 2, len(which)).astype(bool)])
+        # sort by time with one int64 key (time offset, pixel, polarity): no argsort gathers
+        key = rng.integers(0, dt, len(idx)) * (2 * npx) + idx * 2 + pol
+        key.sort()
+        t = t0 + 1 + key // (2 * npx)
+        rem = key % (2 * npx)
+        idx = rem >> 1
+        pol = (rem & 1).astype(np.uint8)
         return ((idx % self.width).astype(np.uint16), (idx // self.width).astype(np.uint16), pol,
                 t.astype(np.int64))
