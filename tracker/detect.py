@@ -39,7 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from scipy.spatial import cKDTree
 
 from tracker.dbscan import dbscan_from_cores, dbscan_grid, dbscan_sklearn
 from tracker.density import NeighbourIndex
@@ -189,6 +188,8 @@ class PaperDetector:
         off = self._clusters(events[events["p"] == 0], cfg.eps_polarity, cfg.min_samples_polarity)
         centres = np.array([[c[0], c[1]] for c in full])
         on_idx = off_idx = None
+        from scipy.spatial import cKDTree  # only the paper's detector needs it: not at import (start-up)
+
         if on:
             _, on_idx = cKDTree(np.array([[c[0], c[1]] for c in on])).query(centres)
         if off:

@@ -30,11 +30,58 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from tracker.objects import COASTING, CONFIRMED, TENTATIVE, Observation, TrackedRobot
 
 __all__ = ["FleetTracker", "FleetConfig"]
+
+
+def linear_sum_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``scipy.optimize.linear_sum_assignment(cost)``, the solver loaded on the first assignment
+    (:func:`_load_lsap`; issue 22: start-up of ``arena track``)."""
+    global _lsap
+    if _lsap is None:
+        _lsap = _load_lsap()
+    return _lsap(cost)
+
+
+_lsap = None
+
+
+def _load_lsap():
+    """scipy's compiled solver, the very function ``scipy.optimize.linear_sum_assignment`` is
+    (``scipy/optimize/_lsap*.so``; it needs only numpy), loaded without the ``scipy.optimize``
+    package: its ``__init__`` imports all of scipy.optimize (linprog, minimize, scipy.sparse,
+    scipy.spatial), ~0.25 s of CPU on the 2-core VM (measured at load ~5), for this one
+    function. The module is not left in ``sys.modules``, so a later ``import scipy.optimize``
+    loads it its usual way.
+    Falls back to the public import when scipy.optimize is already imported, or the file is
+    not where scipy keeps it."""
+    import sys
+
+    if "scipy.optimize" not in sys.modules:
+        try:
+            import importlib.machinery
+            import importlib.util
+            import os
+
+            import scipy
+
+            folder = os.path.join(os.path.dirname(scipy.__file__), "optimize")
+            for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+                path = os.path.join(folder, "_lsap" + suffix)
+                if os.path.isfile(path):
+                    spec = importlib.util.spec_from_file_location("scipy.optimize._lsap", path)
+                    module = importlib.util.module_from_spec(spec)
+                    spec.loader.exec_module(module)
+                    if sys.modules.get(spec.name) is module:
+                        del sys.modules[spec.name]
+                    return module.linear_sum_assignment
+        except Exception:  # noqa: BLE001 - any surprise: the public import below
+            pass
+    from scipy.optimize import linear_sum_assignment as lsa
+
+    return lsa
 
 
 @dataclass

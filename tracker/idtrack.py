@@ -16,13 +16,25 @@ centroid) is done by :class:`tracker.detect.PaperDetector`, whose detections car
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from tracker.objects import CONFIRMED, Observation, TrackedRobot
 
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
 __all__ = ["IDTrack"]
+
+
+def _kd_tree(xy: np.ndarray) -> cKDTree:
+    """``scipy.spatial.cKDTree(xy)``, imported on the first tree: scipy.spatial costs ~0.4 s of CPU
+    to import on the 2-core VM at load ~8 (issue 22: start-up of ``arena track``, whose default
+    tracker does not use it)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(xy)
 
 
 class IDTrack:
@@ -58,7 +70,7 @@ class IDTrack:
                 else:
                     node = int(i)
                     self._xy[node] = c
-                    self._tree = cKDTree(self._xy)
+                    self._tree = _kd_tree(self._xy)
             self._hits[node] += 1
             out.append(TrackedRobot(track_id=self._ids[node], x=ob.x, y=ob.y, t_us=int(ob.t_us),
                                     yaw=ob.yaw, state=CONFIRMED, hits=self._hits[node],
@@ -75,5 +87,5 @@ class IDTrack:
         self._age.append(0)
         self._hits.append(0)
         self.next_id += 1
-        self._tree = cKDTree(self._xy)
+        self._tree = _kd_tree(self._xy)
         return len(self._ids) - 1
