@@ -84,7 +84,7 @@ def compile_tracker() -> None:
 
     cal = Calibration.from_dict(CeilingCamera(640, 480).calibration(), "the simulated camera")
     warm_tracker(lambda: Pipeline(cal, fleet_size=4))
-    _split_cluster(np.zeros(2), np.zeros(2), np.zeros((2, 2)), 1.0)   # robots that meet (no split in warm_tracker)
+    _split_cluster(np.zeros(2), np.zeros(2), np.zeros((2, 2)), 1.0, 1.0)   # robots that meet (no split in warm_tracker)
     compile_csv()
 
 
