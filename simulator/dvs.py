@@ -158,21 +158,42 @@ def _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, members, n_member
         by = -s * dx + c * dy
         if bx < state[i, 7] or bx > state[i, 8] or by < state[i, 9] or by > state[i, 10]:
             continue        # outside what the robot (its parallax hull, shadow) can touch
-        hl = rp[i, 0]
-        hw = rp[i, 1]
         rx = (state[i, 4] - bx) * inv_h
         ry = (state[i, 5] - by) * inv_h
+        hp = 0.5 * pix_m
+        if rp[i, 6] <= 0.0:
+            # the ray meets the shell top's interior (past its rim, the front window and the
+            # area-weighted edge): the full trace below gives exactly the shell's top there
+            zt = bodies[i, 0, 4]
+            tx = bx + rx * zt
+            ty = by + ry * zt
+            mr = hp + rp[i, 5]
+            if (tx >= bodies[i, 0, 0] + mr and tx <= bodies[i, 0, 1] - (hp + rp[i, 4])
+                    and ty >= bodies[i, 0, 2] + mr and ty <= bodies[i, 0, 3] - mr):
+                refl = bodies[i, 0, 5]
+                continue
+        # does the ray pass beside every box (on one side of their union from the mats up to
+        # the top of the highest)? Then the boxes below leave it as it is (no box is hit)
+        zt = state[i, 15]
+        tx = bx + rx * zt
+        ty = by + ry * zt
+        beside = (max(bx, tx) < state[i, 11] - hp or min(bx, tx) > state[i, 12] + hp
+                  or max(by, ty) < state[i, 13] - hp or min(by, ty) > state[i, 14] + hp)
+        hl = rp[i, 0]
+        hw = rp[i, 1]
         sw = rp[i, 8]
         if sw > 0.0:        # contact shadow on the mat (and whatever else lies below)
             ox = max(abs(bx) - hl, 0.0)
             oy = max(abs(by) - hw, 0.0)
-            d = math.sqrt(ox * ox + oy * oy)
-            if d < sw:
-                q = 1.0 - d / sw
-                refl *= 1.0 - rp[i, 7] * q * q
+            if ox < sw and oy < sw:
+                d = math.sqrt(ox * ox + oy * oy)
+                if d < sw:
+                    q = 1.0 - d / sw
+                    refl *= 1.0 - rp[i, 7] * q * q
+        if beside:
+            continue
         nb = int(rp[i, 11])
         ipix = 1.0 / pix_m
-        hp = 0.5 * pix_m
         irx = 1.0 / rx if rx != 0.0 else 0.0
         iry = 1.0 / ry if ry != 0.0 else 0.0
         k = 0
@@ -443,7 +464,19 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
     K = hist.shape[1]
     cap = ox.shape[0]
     n = np.int64(0)     # not a literal 0: numba would compile _sort_segment once per literal
-    state = np.zeros((max(n_rob, 1), 11))
+    state = np.zeros((max(n_rob, 1), 16))
+    for r in range(n_rob):      # union of the robot's boxes (robot frame) and their top
+        state[r, 11] = 1e9
+        state[r, 12] = -1e9
+        state[r, 13] = 1e9
+        state[r, 14] = -1e9
+        for q in range(int(rp[r, 11])):
+            state[r, 11] = min(state[r, 11], bodies[r, q, 0])
+            state[r, 12] = max(state[r, 12], bodies[r, q, 1])
+            state[r, 13] = min(state[r, 13], bodies[r, q, 2])
+            state[r, 14] = max(state[r, 14], bodies[r, q, 3])
+            state[r, 15] = max(state[r, 15], bodies[r, q, 4])
+    near_list = np.zeros(max(n_rob, 1), dtype=np.int64)
     scr = np.zeros((8, 3))
     inv_h = 1.0 / cam_h
     pquad = np.zeros((max(n_rob, 1), 4, 2))
@@ -550,30 +583,46 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                         rspan[r, 2] = 1
                         rspan[r, 3] = 0
                 for u in range(boxes[b, 0], boxes[b, 2]):
-                    near = False        # inside some robot's hull
-                    near_moving = False  # ... or its last one, of a robot that moved this step
+                    kn = 0              # the robots whose hull holds the pixel
+                    near_moving = False  # ... or whose last one does, of a robot that moved
                     for j in range(nm):
                         r = mem[j]
                         if rspan[r, 0] <= u <= rspan[r, 1]:
-                            near = True
+                            near_list[kn] = r
+                            kn += 1
                         if rspan[r, 2] <= u <= rspan[r, 3]:
                             near_moving = True
-                            break
                     if static_light and not near_moving and settled[v, u] and not init:
                         continue            # nothing changes here: skip the pixel
-                    if near:
-                        refl = _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers, mem, nm,
-                                            pix_m, inv_h, flat, scr)
+                    if kn > 0:
+                        refl = _reflectance(u, v, ax, ay, bg, state, rp, bodies, markers,
+                                            near_list, kn, pix_m, inv_h, flat, scr)
                     else:
                         refl = bg[v, u]
-                    irr = illum * gain[v, u] * refl
-                    if static_light and refl == bg[v, u]:
-                        target = bg_log[v, u]
-                        a = bg_alpha[v, u] if std_dt else -1.0
-                    elif static_light and refl == last_refl[v, u]:
-                        target = last_target[v, u]      # e.g. inside a uniform shell
-                        a = last_alpha[v, u] if std_dt else -1.0
+                    irr = -1.0      # computed when needed
+                    if static_light:
+                        # per pixel, the reflectance it saw when last simulated, its log
+                        # intensity and low-pass factor (for std_dt; -1 = not yet computed)
+                        if refl == last_refl[v, u]:
+                            if settled[v, u] and not init:
+                                continue    # the same light, settled: nothing can happen
+                            target = last_target[v, u]      # e.g. inside a uniform shell
+                            a = last_alpha[v, u] if std_dt else -1.0
+                        else:
+                            if refl == bg[v, u]:
+                                target = float(bg_log[v, u])
+                                a = bg_alpha[v, u]
+                            else:
+                                irr = illum * gain[v, u] * refl
+                                target = math.log(irr + dark)
+                                a = -1.0
+                            last_refl[v, u] = refl
+                            last_target[v, u] = target
+                            last_alpha[v, u] = a
+                            if not std_dt:
+                                a = -1.0
                     else:
+                        irr = illum * gain[v, u] * refl
                         target = math.log(irr + dark)
                         a = -1.0
                     if init:
@@ -587,11 +636,11 @@ def _dvs_block(poses, t_seq, t_start, cur_boxes, hist, hist_i, full_frame, width
                     if abs(target - old) > 1e-6:    # settled (float32 memory)
                         settled[v, u] = 0
                         if a < 0.0:
+                            if irr < 0.0:
+                                irr = illum * gain[v, u] * refl
                             f = max(cutoff_hz * (irr + dark), min_cutoff_hz)
                             a = 1.0 - math.exp(-2.0 * math.pi * f * dt_s)
-                            if static_light and std_dt and refl != bg[v, u]:
-                                last_refl[v, u] = refl
-                                last_target[v, u] = target
+                            if static_light and std_dt:
                                 last_alpha[v, u] = a
                         new = old + (target - old) * a
                         llp[v, u] = new
