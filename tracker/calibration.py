@@ -316,10 +316,12 @@ def mat_points(side_m: float) -> np.ndarray:
 def find_mat_corners(gray: np.ndarray) -> np.ndarray:
     """Corners of the mat (the largest bright quadrilateral) in a grayscale image, px.
 
-    Works on a webcam frame (white mats on a darker floor) and on an accumulated event
-    image (robots and noise light up the arena). Returns a (4, 2) array ordered
-    bottom-left, bottom-right, top-right, top-left in the image. Raises
-    :class:`CalibrationError` when no convincing quadrilateral is found.
+    Works on a webcam frame (white mats on a darker floor) and on any image where the mat is
+    brighter than its surround. The bright region gives a coarse quadrilateral; each of its
+    edges is then located to sub-pixel precision on profiles across it (see
+    :func:`refine_quad`) and the corners are the intersections of the fitted edge lines.
+    Returns a (4, 2) array ordered bottom-left, bottom-right, top-right, top-left in the
+    image. Raises :class:`CalibrationError` when no convincing quadrilateral is found.
     """
     if gray is None or gray.ndim != 2 or gray.size == 0:
         raise CalibrationError("expected a non-empty grayscale image")
@@ -327,17 +329,24 @@ def find_mat_corners(gray: np.ndarray) -> np.ndarray:
         raise CalibrationError("the image has no contrast: no mat found (give --points)")
     img = cv2.GaussianBlur(gray.astype(np.uint8), (5, 5), 0)
     _, mask = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    k = max(3, (min(gray.shape) // 60) | 1)
+    quad = _quad_from_mask(mask)
+    return _order_corners(refine_quad(cv2.GaussianBlur(gray.astype(np.float32), (0, 0), 1.0), quad))
+
+
+def _quad_from_mask(mask: np.ndarray) -> np.ndarray:
+    """The coarse quadrilateral (4, 2) of the largest region of a binary mask (255 = mat),
+    with the checks that it is one solid region of plausible size."""
+    k = max(3, (min(mask.shape) // 60) | 1)
     mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_RECT, (k, k)))
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     if not contours:
         raise CalibrationError("no bright region found: is the mat in view? (or give --points)")
     c = max(contours, key=cv2.contourArea)
     area = cv2.contourArea(c)
-    if area < 0.05 * gray.size:
-        raise CalibrationError(f"the largest bright region covers only {100 * area / gray.size:.1f} % of the "
+    if area < 0.05 * mask.size:
+        raise CalibrationError(f"the largest bright region covers only {100 * area / mask.size:.1f} % of the "
                                "image: no mat found (give --points)")
-    if area > 0.97 * gray.size:
+    if area > 0.97 * mask.size:
         raise CalibrationError("the bright region fills the whole image: the mat's edges are not in view "
                                "(give --points)")
     hull = cv2.convexHull(c)
@@ -359,9 +368,214 @@ def find_mat_corners(gray: np.ndarray) -> np.ndarray:
     if fill < 0.85 or spill > 0.15:
         raise CalibrationError(f"no clear mat in the image (the bright quadrilateral found is {100 * fill:.0f} % "
                                f"filled, {100 * spill:.0f} % bright outside): give --points")
-    # order: bottom-left, bottom-right, top-right, top-left (v grows downwards)
+    return quad
+
+
+def _order_corners(quad: np.ndarray) -> np.ndarray:
+    """Order 4 corners bottom-left, bottom-right, top-right, top-left (v grows downwards)."""
     s = quad.sum(1)
     d = quad[:, 0] - quad[:, 1]
     tl, br = quad[np.argmin(s)], quad[np.argmax(s)]
     tr, bl = quad[np.argmax(d)], quad[np.argmin(d)]
     return np.array([bl, br, tr, tl])
+
+
+def refine_quad(level: np.ndarray, quad: np.ndarray, blur_px: float = 1.0, seg_px: float = 8.0,
+                iterations: int = 3) -> np.ndarray:
+    """Sub-pixel corners of a quadrilateral region brighter than its surround in ``level``.
+
+    ``level`` is a float image whose value inside the region is higher than outside (a
+    grayscale frame, or the flicker amplitude of :func:`flicker_maps`), blurred by about
+    ``blur_px`` (Gaussian sigma, px); the inside level may vary slowly (vignetting, lamp
+    fall-off). ``quad`` (4, 2) px is a coarse outline, in order around the region. The middle
+    80 % of each edge is cut into segments; each segment's mean profile across the edge is
+    normalised by its own inside and outside levels (so the local brightness does not matter)
+    and the edge's position is the integral of that normalised profile (for a step blurred by
+    any symmetric kernel, the integral is the step's position: no threshold, no bias from the
+    blur). A robust line (Huber, then points beyond 3 px dropped) is fitted to each edge's
+    positions and adjacent lines are intersected. The first pass uses long profiles (the
+    coarse outline may be a few px off), the next ones profiles just longer than the blur
+    (less noise). The coarse corners are returned when an edge has too few usable segments.
+    Returns (4, 2) px in the input order.
+    """
+    lv = np.ascontiguousarray(level, dtype=np.float32)
+    h, w = lv.shape
+    q = np.asarray(quad, dtype=np.float64).reshape(4, 2).copy()
+    half0 = max(6.0, 0.025 * min(w, h), 3.0 * blur_px + 3.0)       # half-length of a profile, px
+    seg = max(4.0, seg_px)                                           # segment length along the edge, px
+    for it in range(iterations):
+        half = half0 if it == 0 else max(6.0, 3.0 * blur_px + 3.0)
+        offs = np.arange(-half, half + 1e-9, 0.5)
+        inner, outer = offs < -half / 2, offs > half / 2
+        centre = q.mean(0)
+        lines = []
+        for i in range(4):
+            a, b = q[i], q[(i + 1) % 4]
+            length = float(np.hypot(*(b - a)))
+            if length < 8 * half0:
+                return q
+            d = (b - a) / length
+            n = np.array([d[1], -d[0]])
+            if np.dot((a + b) / 2 - centre, n) < 0:
+                n = -n                           # n points out of the region
+            tau = np.arange(0.1 * length, 0.9 * length, 0.5)
+            base = a + tau[:, None] * d
+            pts = base[:, None, :] + offs[None, :, None] * n
+            prof = cv2.remap(lv, pts[..., 0].astype(np.float32), pts[..., 1].astype(np.float32),
+                             cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+            k = (tau - tau[0]) // seg
+            nseg = int(k.max()) + 1
+            good = np.isfinite(prof).all(1)
+            cnt = np.bincount(k[good].astype(np.int64), minlength=nseg)
+            mean = np.zeros((nseg, len(offs)))
+            np.add.at(mean, k[good].astype(np.int64), prof[good])
+            use = cnt >= 0.8 * cnt.max()
+            mean = mean[use] / cnt[use, None]
+            tc = np.bincount(k.astype(np.int64), weights=tau, minlength=nseg)[use] / \
+                np.bincount(k.astype(np.int64), minlength=nseg)[use]
+            inside = mean[:, inner].mean(1)
+            outside = mean[:, outer].mean(1)
+            contrast = inside - outside
+            ok = contrast > 0.25 * np.median(contrast)
+            if ok.sum() < 5:
+                return q
+            u = (mean[ok] - outside[ok, None]) / contrast[ok, None]
+            e = np.clip(u.sum(1) * 0.5 - half, -half, half)   # integral of the normalised step - half
+            p = a + tc[ok, None] * d + e[:, None] * n
+            lines.append(_fit_line(p))
+        q = np.array([_intersect(lines[i - 1], lines[i]) for i in range(4)])
+    return q
+
+
+def _fit_line(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A robust line (point, unit direction) through points (n, 2)."""
+    keep = np.ones(len(p), bool)
+    for _ in range(2):
+        vx, vy, x0, y0 = cv2.fitLine(p[keep].astype(np.float32), cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
+        d, c = np.array([vx, vy], np.float64), np.array([x0, y0], np.float64)
+        r = np.abs((p - c) @ np.array([-d[1], d[0]]))
+        new = r < 3.0
+        if new.sum() < 4 or (new == keep).all():
+            break
+        keep = new
+    return c, d
+
+
+def _intersect(l1, l2) -> np.ndarray:
+    (c1, d1), (c2, d2) = l1, l2
+    A = np.column_stack([d1, -d2])
+    s = np.linalg.solve(A, c2 - c1)
+    return c1 + s[0] * d1
+
+
+# -- the mat seen by an event camera under flickering light ---------------------------------
+#: Width of the time bins of the whole sensor's signed event rate, s (Nyquist 2 kHz).
+FLICKER_BIN_S = 2.5e-4
+#: Band searched for the lamp's flicker, Hz (mains lamps: 100 or 120 Hz; some drivers higher).
+FLICKER_BAND_HZ = (40.0, 1000.0)
+
+
+def signed_rate(t_us: np.ndarray, p: np.ndarray, t0_us: int, out: np.ndarray) -> None:
+    """Add events to ``out``, the sensor's ON minus OFF count per :data:`FLICKER_BIN_S` bin
+    from ``t0_us`` (events outside ``out``'s span are ignored)."""
+    k = ((np.asarray(t_us, np.int64) - t0_us) * (1e-6 / FLICKER_BIN_S)).astype(np.int64)
+    m = (k >= 0) & (k < len(out))
+    out += np.bincount(k[m], weights=2.0 * (p[m] > 0) - 1.0, minlength=len(out))
+
+
+def flicker_frequency(rate: np.ndarray) -> float:
+    """The lamp's flicker frequency, Hz, from the sensor's signed event rate
+    (:func:`signed_rate`): the strongest line of its spectrum in :data:`FLICKER_BAND_HZ`.
+
+    A lamp flickering at f makes every lit pixel fire ON events while it brightens and OFF
+    while it dims, so ON minus OFF over the sensor oscillates at f; sensor noise has no line.
+    Raises :class:`CalibrationError` when the strongest line is not far above the spectrum's
+    median (no flickering light seen).
+    """
+    rate = np.asarray(rate, np.float64)
+    if len(rate) < 8:
+        raise CalibrationError("the recording is too short to see the light flicker")
+    nfft = 1 << int(math.ceil(math.log2(len(rate) * 16)))
+    spec = np.abs(np.fft.rfft(rate - rate.mean(), nfft)) ** 2
+    fr = np.fft.rfftfreq(nfft, FLICKER_BIN_S)
+    band = (fr >= FLICKER_BAND_HZ[0]) & (fr <= FLICKER_BAND_HZ[1])
+    med = float(np.median(spec[band]))
+    i = int(np.argmax(np.where(band, spec, -1.0)))
+    # noise: the periodogram is exponential, its max over the band rarely exceeds ~15x its median
+    if not (spec[i] > 40.0 * max(med, 1e-12)):
+        raise CalibrationError("no flickering light found in the events (no line in their rate between "
+                               f"{FLICKER_BAND_HZ[0]:g} and {FLICKER_BAND_HZ[1]:g} Hz)")
+    if 0 < i < len(spec) - 1:                    # parabolic peak interpolation on the log spectrum
+        y0, y1, y2 = np.log(spec[i - 1:i + 2] + 1e-300)
+        den = y0 - 2 * y1 + y2
+        i = i + (0.5 * (y0 - y2) / den if den < 0 else 0.0)
+    return float(i * fr[1])
+
+
+def add_phasors(A: np.ndarray, N: np.ndarray, x, y, p, t_us, t0_us: int, freq_hz: float) -> None:
+    """Add events to the per-pixel lock-in sums at ``freq_hz``: ``A`` (h, w) complex,
+    sum of polarity * exp(-2 pi i f t); ``N`` (h, w), event count."""
+    h, w = A.shape
+    idx = np.asarray(y, np.int64) * w + np.asarray(x, np.int64)
+    ph = (2.0 * np.pi * freq_hz * 1e-6) * (np.asarray(t_us, np.int64) - t0_us).astype(np.float64)
+    s = 2.0 * (np.asarray(p) > 0) - 1.0
+    A += (np.bincount(idx, weights=s * np.cos(ph), minlength=h * w)
+          - 1j * np.bincount(idx, weights=s * np.sin(ph), minlength=h * w)).reshape(h, w)
+    N += np.bincount(idx, minlength=h * w).reshape(h, w)
+
+
+def flicker_maps(A: np.ndarray, N: np.ndarray, sigma_px: float = 3.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flicker amplitude and its significance per pixel from the lock-in sums (:func:`add_phasors`).
+
+    The sums are smoothed coherently (Gaussian, ``sigma_px``) and projected on the local phase
+    of the flicker (from a 5x wider smoothing: the response lags more where the light is dim),
+    which gives ``amp``: events per pixel locked to the flicker, linear in the events (noise
+    averages to zero, not to a positive bias). ``z`` is the Rayleigh statistic |sum|^2 / var:
+    about 1 (exponential) where events have no phase relation to the light (sensor noise,
+    leak events, a dark floor), large where they follow it. ``edge``: per pixel, its events'
+    projection on the local phase clipped to +-2 events, smoothed by 1 px (for the edges: the
+    pixels' response is very uneven, threshold mismatch), see :func:`find_mat_corners_flicker`.
+    """
+    def blur(a, s):
+        return cv2.GaussianBlur(a, (0, 0), s, borderType=cv2.BORDER_REFLECT)
+
+    re, im = A.real.astype(np.float32), A.imag.astype(np.float32)
+    S = blur(re, sigma_px) + 1j * blur(im, sigma_px)
+    R = blur(re, 5 * sigma_px) + 1j * blur(im, 5 * sigma_px)
+    amp = (S * np.conj(R) / np.maximum(np.abs(R), 1e-12)).real.astype(np.float32)
+    # var of a Gaussian-weighted sum of Poisson counts: sum g^2 N; g^2 is a Gaussian of
+    # sigma/sqrt(2) scaled by 1 / (4 pi sigma^2)
+    var = blur(N.astype(np.float32), sigma_px / math.sqrt(2.0)) / (4.0 * math.pi * sigma_px ** 2)
+    z = (np.abs(S) ** 2 / np.maximum(var, 1e-12)).astype(np.float32)
+    z[var <= 1e-9] = 0.0
+    # per pixel: events locked to the local phase, clipped to +-2 (a few pixels with a low
+    # contrast threshold fire on every cycle and would dominate any local mean), lightly smoothed
+    R /= np.maximum(np.abs(R), 1e-12)
+    locked = np.clip((A * np.conj(R)).real, -2.0, 2.0).astype(np.float32)
+    edge = cv2.GaussianBlur(locked, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT)
+    return amp, z, edge
+
+
+def find_mat_corners_flicker(amp: np.ndarray, z: np.ndarray, edge: np.ndarray | None = None,
+                             z_min: float = 9.0) -> np.ndarray:
+    """Corners of the mat from the flicker maps of an event recording (:func:`flicker_maps`), px.
+
+    The mat is the region whose events follow the light's flicker significantly (``z`` above
+    ``z_min``) and strongly: amplitude above the Otsu threshold of log amplitude (the mat is
+    many times brighter than the floor; vignetting only scales it, which the log turns into a
+    shift smaller than the gap). Its outline is refined on the amplitude map by
+    :func:`refine_quad`. Ordered as :func:`find_mat_corners`; the same errors.
+    """
+    amp = np.asarray(amp, np.float32)
+    sig = z > z_min
+    if sig.mean() < 0.01:
+        raise CalibrationError("no bright region found: is the mat in view? (or give --points)")
+    la = np.log(np.maximum(amp, 1e-3 * float(np.percentile(amp[sig], 90))))
+    lo, hi = float(la.min()), float(la.max())
+    u8 = np.round(255.0 * (la - lo) / max(hi - lo, 1e-9)).astype(np.uint8)
+    thr, _ = cv2.threshold(u8, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    mask = np.where(sig & (u8 > thr), 255, 0).astype(np.uint8)
+    k = max(3, (min(mask.shape) // 100) | 1)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    quad = _quad_from_mask(mask)
+    return _order_corners(refine_quad(amp if edge is None else edge, quad, blur_px=1.0, seg_px=48.0))

@@ -370,10 +370,11 @@ def run_calibrate(args) -> int:
                 image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
                 if image is None:
                     raise fail(f"arena calibrate: cannot read the image {args.image!r}")
-            else:
-                image = _event_image(args.events, args.seconds)
             try:
-                corners = find_mat_corners(image)
+                if args.events:
+                    image, corners = _event_corners(args.events, args.seconds)
+                else:
+                    corners = find_mat_corners(image)
             except CalibrationError as exc:
                 if args.events:   # a still, steadily lit mat makes no events
                     raise CalibrationError(
@@ -398,31 +399,59 @@ def run_calibrate(args) -> int:
     return 0
 
 
-def _event_image(path: str, seconds: float):
+def _event_corners(path: str, seconds: float):
+    """The mat's corners from the first ``seconds`` of an event recording under flickering
+    light, and a preview image of the flicker amplitude. Two passes over the file (its
+    flicker frequency, then per-pixel lock-in sums at it), so memory does not grow with the
+    recording."""
     import numpy as np
 
     from arena.formats import FormatError, iter_events
+    from tracker.calibration import (FLICKER_BIN_S, CalibrationError, add_phasors, find_mat_corners_flicker,
+                                     flicker_frequency,
+                                     flicker_maps, signed_rate)
 
-    try:
+    if not (seconds > 0 and math.isfinite(seconds)):
+        raise fail(f"arena calibrate: --seconds must be > 0, got {seconds}")
+    span_us = int(round(seconds * 1e6))
+
+    def chunks():
         with iter_events(path) as reader:
             w, h = reader.width, reader.height
             if not (w and h):
                 raise fail(f"arena calibrate: {path} does not carry its sensor size; convert it with "
-                                 "`arena convert --size WxH` first")
-            img = np.zeros(h * w, dtype=np.float64)
+                           "`arena convert --size WxH` first")
             t0 = None
             for chunk in reader:
                 if chunk.size == 0:
                     continue
                 t0 = int(chunk["t"][0]) if t0 is None else t0
-                chunk = chunk[chunk["t"] < t0 + seconds * 1e6]
-                np.add.at(img, chunk["y"].astype(np.int64) * w + chunk["x"], 1.0)
+                chunk = chunk[chunk["t"] < t0 + span_us]
                 if chunk.size == 0:
                     break
+                yield w, h, t0, chunk
+
+    try:
+        rate = np.zeros(int(math.ceil(seconds / FLICKER_BIN_S)), np.float64)
+        size, t0, t_end = None, None, None
+        for w, h, t0, c in chunks():
+            size = (w, h)
+            signed_rate(c["t"], c["p"], t0, rate)
+            t_end = int(c["t"][-1])
+        if size is None:
+            raise CalibrationError("the recording has no events")
+        rate = rate[:max(1, int((t_end - t0) * 1e-6 / FLICKER_BIN_S) + 1)]
+        freq = flicker_frequency(rate)
+        w, h = size
+        A, N = np.zeros((h, w), np.complex128), np.zeros((h, w), np.float64)
+        for _, _, t0, c in chunks():
+            add_phasors(A, N, c["x"], c["y"], c["p"], c["t"], t0, freq)
     except (FormatError, OSError) as exc:
         raise fail(f"arena calibrate: {exc}") from None
-    img = np.log1p(img.reshape(h, w))
-    return (255.0 * img / max(img.max(), 1e-9)).astype(np.uint8)
+    amp, z, edge = flicker_maps(A, N)
+    hi = float(np.percentile(amp, 99.5))
+    image = (255.0 * np.clip(amp / max(hi, 1e-9), 0.0, 1.0)).astype(np.uint8)
+    return image, find_mat_corners_flicker(amp, z, edge)
 
 
 def _preview(cal, gray, L: float):
