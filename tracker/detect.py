@@ -73,6 +73,11 @@ class Detection:
             grouped, or a filled cluster as long and wide as the chassis); False for a lone
             edge bar or a sparse part, whose position is less certain (``shape_axis`` NaN).
         n_parts: DBSCAN clusters grouped into this detection (1: a single cluster).
+        outline: True when ``u, v`` is the middle of the outline (the silhouette's extent, each
+            pixel once), False when it is an event centroid (or its motion fit). A silhouette
+            reaches from the ground (the foot of the walls facing the lens) to the top edge on
+            the far side, so its middle is seen at half the robot's height (the pipeline
+            corrects its parallax for that height).
     """
 
     u: float
@@ -92,6 +97,7 @@ class Detection:
     t_act_us: int | None = None
     whole: bool = True
     n_parts: int = 1
+    outline: bool = False
 
 
 # --------------------------------------------------------------------------- pixels
@@ -234,6 +240,19 @@ class DetectorConfig:
             along the motion) and place the robot by fitting its footprint (a box of the chassis
             size) to the outline, instead of one detection per cluster at its event centroid.
             ``False``: the detector before issue 19 (one detection per cluster).
+        outline_filled: with ``group_edges``, a single filled cluster is placed by its outline
+            too (the middle of its trimmed extent along and across the motion, or along the sensor
+            axes when it does not move, e.g. a zero-point turn; each pixel once), not by its event
+            centroid: a shell's events are not spread evenly over its footprint (a bright shell
+            barely contrasts with the mats, and its dark front window's inner edge gives most of
+            its events), so the centroid sits where the contrast is (1.4 cm ahead of the centre on
+            a near-white shell at full speed). ``False``: the event centroid's motion fit.
+        edge_flanks: the outline's ends are its edge bars' outer flanks (where a bar falls to half
+            its peak), the leading end placed by each pixel's first event time and the trailing
+            end by its last (see :func:`_outline_extent`); ``False``: the trimmed extremes of the
+            pixels moved by their mean event times, which stray pixels (a noise event moves a
+            pixel by the wrong time, anywhere along the path) and inner edges pulled off: the
+            outline then sat 0.2-0.5 cm behind a moving robot's centre, depending on its shell.
     """
 
     chassis_m: float = 0.10
@@ -248,6 +267,8 @@ class DetectorConfig:
     backend: str = "grid"
     incremental: bool = True
     group_edges: bool = True
+    outline_filled: bool = True
+    edge_flanks: bool = True
 
     def validate(self) -> None:
         for name in ("chassis_m", "eps_chassis", "min_fill", "noise_false_rate", "min_area_chassis",
@@ -259,7 +280,7 @@ class DetectorConfig:
             raise ValueError(f"detector noise_quantile must be in [0, 1], got {self.noise_quantile!r}")
         if self.backend not in BACKENDS:
             raise ValueError(f"unknown DBSCAN backend {self.backend!r}; choose from {sorted(BACKENDS)}")
-        for name in ("incremental", "group_edges"):
+        for name in ("incremental", "group_edges", "outline_filled", "edge_flanks"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"detector {name} must be true or false, got {getattr(self, name)!r}")
 
@@ -342,14 +363,21 @@ def _cluster_harmonic(labels, pu, pv, cnt, cx, cy, order, k):
 
 
 @njit(cache=True, nogil=True)
-def _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vu, vv, t_ev, cap, binw, tail):
+def _outline_extent(glab, pu, pv, cnt, st, st2, ng, ax, ay, vu, vv, t_ev, cap, binw, tail, edge_times):
     """Extent of each group's outline along its axis (ax, ay) and across it, px, at the group's
-    time ``t_ev`` (s): every pixel is moved by the group's velocity (vu, vv px/s) from its mean
-    event time to ``t_ev``, so a moving edge's pixels gather where the edge is then. Pixels
-    count once, not by their events (the extent does not depend on the shell's contrast); the
-    ``tail`` fraction of a group's pixels is left out at either end (stray pixels), in bins of
-    ``binw`` px over at most ``cap`` px. Returns (ng, 4): a_lo, a_hi, l_lo, l_hi (px, in the
-    rotated frame a = x ax + y ay, l = y ax - x ay)."""
+    time ``t_ev`` (s): every pixel is moved by the group's velocity (vu, vv px/s) from its event
+    time to ``t_ev``, so a moving edge's pixels gather where the edge is then. Pixels count once,
+    not by their events (the extent does not depend on the shell's contrast); the ``tail``
+    fraction of a group's pixels is left out at either end (stray pixels), in bins of ``binw`` px
+    over at most ``cap`` px. The event time is the pixel's mean. With ``edge_times`` (the
+    detector's ``edge_flanks``): along the axis the leading end takes each pixel's first event
+    time and the trailing end its last (mean -/+ sqrt(3) sd, the ends of a uniform spread; the
+    silhouette's boundary is where a pixel's changes begin, ahead, and end, behind, while inner
+    edges such as a dark front window add events later or earlier and pull the mean inwards),
+    and each end, on both axes, is the outer flank of its half's profile: the outermost bin where
+    it reaches half its peak (3-bin sums), so stray pixels (a noise event moves a pixel by the
+    wrong time, anywhere along the path: ~10 % of a group's pixels) do not set it. Returns (ng,
+    4): a_lo, a_hi, l_lo, l_hi (px, in the rotated frame a = x ax + y ay, l = y ax - x ay)."""
     out = np.zeros((ng, 4))
     amin = np.full(ng, 1e18)
     amax = np.full(ng, -1e18)
@@ -357,21 +385,30 @@ def _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vu, vv, t_ev, cap, binw, 
     lmax = np.full(ng, -1e18)
     npix = np.zeros(ng, dtype=np.int64)
     m = glab.shape[0]
-    pa = np.empty(m)
+    pa = np.empty(m)      # along the axis, at the first event time (leading end)
+    pz = np.empty(m)      # along the axis, at the last event time (trailing end)
     pl = np.empty(m)
     for j in range(m):
         g = glab[j]
         if g < 0:
             continue
-        dt = t_ev[g] - st[j] / cnt[j]
+        tm = st[j] / cnt[j]
+        half = 0.0
+        if edge_times and cnt[j] > 1:
+            var = st2[j] / cnt[j] - tm * tm
+            if var > 0.0:
+                half = math.sqrt(3.0 * var)
+        va = vu[g] * ax[g] + vv[g] * ay[g]
+        dt = t_ev[g] - tm
         x = pu[j] + vu[g] * dt
         y = pv[j] + vv[g] * dt
         a = x * ax[g] + y * ay[g]
         lat = y * ax[g] - x * ay[g]
-        pa[j] = a
+        pa[j] = a + va * half
+        pz[j] = a - va * half
         pl[j] = lat
-        amin[g] = min(amin[g], a)
-        amax[g] = max(amax[g], a)
+        amin[g] = min(amin[g], min(pa[j], pz[j]))
+        amax[g] = max(amax[g], max(pa[j], pz[j]))
         lmin[g] = min(lmin[g], lat)
         lmax[g] = max(lmax[g], lat)
         npix[g] += 1
@@ -387,12 +424,14 @@ def _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vu, vv, t_ev, cap, binw, 
         oa[g + 1] = oa[g] + na[g]
         ol[g + 1] = ol[g] + nl[g]
     ha = np.zeros(oa[ng], dtype=np.int64)
+    hz = np.zeros(oa[ng], dtype=np.int64)
     hl = np.zeros(ol[ng], dtype=np.int64)
     for j in range(m):
         g = glab[j]
         if g < 0:
             continue
         ha[oa[g] + min(int((pa[j] - amin[g]) / binw), na[g] - 1)] += 1
+        hz[oa[g] + min(int((pz[j] - amin[g]) / binw), na[g] - 1)] += 1
         hl[ol[g] + min(int((pl[j] - lmin[g]) / binw), nl[g] - 1)] += 1
     for g in range(ng):
         if npix[g] == 0:
@@ -400,25 +439,257 @@ def _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vu, vv, t_ev, cap, binw, 
         tol = int(tail * npix[g])
         for axis in range(2):
             if axis == 0:
-                hist = ha[oa[g]:oa[g + 1]]
+                lo_hist = hz[oa[g]:oa[g + 1]]
+                hi_hist = ha[oa[g]:oa[g + 1]]
                 lo0 = amin[g]
             else:
-                hist = hl[ol[g]:ol[g + 1]]
+                lo_hist = hl[ol[g]:ol[g + 1]]
+                hi_hist = lo_hist
                 lo0 = lmin[g]
-            nb = hist.shape[0]
+            nb = lo_hist.shape[0]
             q0 = 0
-            acc = hist[0]
+            acc = lo_hist[0]
             while q0 < nb - 1 and acc <= tol:
                 q0 += 1
-                acc += hist[q0]
+                acc += lo_hist[q0]
             q1 = nb - 1
-            acc = hist[nb - 1]
-            while q1 > q0 and acc <= tol:
+            acc = hi_hist[nb - 1]
+            while q1 > 0 and acc <= tol:
                 q1 -= 1
-                acc += hist[q1]
+                acc += hi_hist[q1]
+            q1 = max(q1, q0)
+            if edge_times and q1 - q0 >= 4:
+                # each end at the outer flank of its half's profile (an edge bar along the
+                # motion, the side across it): the outermost place where it is at least half its
+                # peak (3-bin sums), not the last stray pixel
+                mid = (q0 + q1) // 2
+                pk = 0
+                for b in range(q0, mid + 1):
+                    sm = lo_hist[max(b - 1, 0)] + lo_hist[b] + lo_hist[min(b + 1, nb - 1)]
+                    pk = max(pk, sm)
+                b0 = q0
+                while b0 < mid:
+                    sm = lo_hist[max(b0 - 1, 0)] + lo_hist[b0] + lo_hist[min(b0 + 1, nb - 1)]
+                    if 2 * sm >= pk:
+                        break
+                    b0 += 1
+                pk = 0
+                for b in range(mid, q1 + 1):
+                    sm = hi_hist[max(b - 1, 0)] + hi_hist[b] + hi_hist[min(b + 1, nb - 1)]
+                    pk = max(pk, sm)
+                b1 = q1
+                while b1 > mid:
+                    sm = hi_hist[max(b1 - 1, 0)] + hi_hist[b1] + hi_hist[min(b1 + 1, nb - 1)]
+                    if 2 * sm >= pk:
+                        break
+                    b1 -= 1
+                q0, q1 = b0, b1
             out[g, 2 * axis] = lo0 + q0 * binw
             out[g, 2 * axis + 1] = lo0 + (q1 + 1) * binw
     return out
+
+
+@njit(cache=True, nogil=True)
+def _group_sums(grp, s, cxt, cyt, ctt, cxx, cyy, cxy, labels, on, has_on, pu, pv, ng):
+    """Per group (``grp``: group of each cluster) of :meth:`Detector._grouped`: the sums of its
+    clusters' moments (``s[:, :9]``) and centred sums, its number of clusters, each pixel's group
+    (-1: none), its pixels, and the ON events' count and coordinate sums (zeros without ``on``).
+    Summed in the order of numpy's ``bincount``/``add.at``: the same values."""
+    k = grp.shape[0]
+    gs = np.zeros((ng, 9))
+    gxt = np.zeros(ng)
+    gyt = np.zeros(ng)
+    gtt = np.zeros(ng)
+    gxx = np.zeros(ng)
+    gyy = np.zeros(ng)
+    gxy = np.zeros(ng)
+    parts = np.zeros(ng, dtype=np.int64)
+    for c in range(k):
+        g = grp[c]
+        for q in range(9):
+            gs[g, q] += s[c, q]
+        gxt[g] += cxt[c]
+        gyt[g] += cyt[c]
+        gtt[g] += ctt[c]
+        gxx[g] += cxx[c]
+        gyy[g] += cyy[c]
+        gxy[g] += cxy[c]
+        parts[g] += 1
+    m = labels.shape[0]
+    glab = np.full(m, -1, dtype=np.int64)
+    npx = np.zeros(ng, dtype=np.int64)
+    on_n = np.zeros(ng)
+    on_x = np.zeros(ng)
+    on_y = np.zeros(ng)
+    for j in range(m):
+        c = labels[j]
+        if c < 0:
+            continue
+        g = grp[c]
+        glab[j] = g
+        npx[g] += 1
+        if has_on:
+            w = float(on[j])
+            on_n[g] += w
+            on_x[g] += w * pu[j]
+            on_y[g] += w * pv[j]
+    return gs, gxt, gyt, gtt, gxx, gyy, gxy, parts, glab, npx, on_n, on_x, on_y
+
+
+@njit(cache=True, nogil=True)
+def _group_axes(gs, gn, gtm, gvt, gxt, gyt, gtt, gxx, gyy, gxy, on_n, on_x, on_y, has_on, t_end_rel,
+                length, min_speed):
+    """Per group of :meth:`Detector._grouped`: the straight-motion fit (bx, by px/s, its sigma),
+    the activity end ``t_eval`` (s), the motion axis (ax, ay), whether the axis comes from the
+    outline (``along``) and whether the group moves, and its velocity along the axis (px/s).
+
+    The motion axis: the line from the ON to the OFF centroid when they are apart (two edges),
+    else the short axis of an elongated part (an edge lies across the motion), else the
+    velocity; the velocity only orients it (timestamps can skew)."""
+    ng = gs.shape[0]
+    bx = np.zeros(ng)
+    by = np.zeros(ng)
+    sig = np.full(ng, np.nan)
+    t_eval = np.full(ng, t_end_rel)
+    ax = np.ones(ng)
+    ay = np.zeros(ng)
+    along = np.zeros(ng, dtype=np.bool_)   # axis from the outline, not the velocity
+    moving = np.zeros(ng, dtype=np.bool_)
+    vel = np.zeros((ng, 2))
+    for g in range(ng):
+        if gtt[g] > 1e-12:
+            bx[g] = gxt[g] / gtt[g]
+            by[g] = gyt[g] / gtt[g]
+            res = max((gxx[g] + gyy[g] - bx[g] * gxt[g] - by[g] * gyt[g]) / gn[g], 1e-9)
+            sig[g] = math.sqrt(res / gtt[g])
+            # activity end: mean + sqrt(3) sd is the end of a uniform interval;
+            # a robot that stopped inside the window stays where it stopped
+            t_eval[g] = min(t_end_rel, gtm[g] + math.sqrt(3.0 * gvt[g]))
+        got = False
+        if has_on and 0 < on_n[g] < gs[g, 0]:
+            n_off = gs[g, 0] - on_n[g]
+            dx = (gs[g, 3] - on_x[g]) / n_off - on_x[g] / on_n[g]
+            dy = (gs[g, 4] - on_y[g]) / n_off - on_y[g] / on_n[g]
+            dd = math.hypot(dx, dy)
+            if dd >= 0.5 * length:
+                ax[g] = dx / dd
+                ay[g] = dy / dd
+                got = True
+        if not got:
+            # eigenvectors of the pooled within-part covariance
+            a_ = gxx[g]
+            b_ = gxy[g]
+            c_ = gyy[g]
+            tr = a_ + c_
+            disc = math.sqrt(max(0.25 * (a_ - c_) ** 2 + b_ * b_, 0.0))
+            lmin = 0.5 * tr - disc
+            lmax = 0.5 * tr + disc
+            if lmax > 0 and lmax >= 3.0 * max(lmin, 0.0):
+                # minor axis: eigenvector of lmin
+                if abs(b_) > 1e-12:
+                    ex, ey = b_, lmin - a_
+                elif a_ <= c_:
+                    ex, ey = 1.0, 0.0
+                else:
+                    ex, ey = 0.0, 1.0
+                en = math.hypot(ex, ey)
+                ax[g] = ex / en
+                ay[g] = ey / en
+                got = True
+        if got:
+            along[g] = True
+            va = bx[g] * ax[g] + by[g] * ay[g]
+            if va < 0:
+                ax[g] = -ax[g]
+                ay[g] = -ay[g]
+                va = -va
+            moving[g] = not math.isnan(sig[g]) and va > min_speed and va > 3.0 * sig[g]
+            if moving[g]:
+                vel[g, 0] = va * ax[g]
+                vel[g, 1] = va * ay[g]
+        else:
+            sp = math.hypot(bx[g], by[g])
+            moving[g] = not math.isnan(sig[g]) and sp > min_speed and sp > 3.0 * sig[g]
+            if moving[g]:
+                ax[g] = bx[g] / sp
+                ay[g] = by[g] / sp
+                vel[g, 0] = bx[g]
+                vel[g, 1] = by[g]
+    return bx, by, sig, t_eval, ax, ay, along, moving, vel
+
+
+@njit(cache=True, nogil=True)
+def _group_poses(gs, gn, gtm, gtt, npx, parts, group_hint, hints, fit, bx, by, t_eval, ax, ay, along, moving,
+                 h_re, h_im, h_n, min_area, length, width, outline_filled, sensor_w, sensor_h, order,
+                 min_anisotropy):
+    """Per group of :meth:`Detector._grouped`: kept (a robot's size), whole, placed by its outline,
+    position (u, v px), velocity (px/s, NaN when unknown), motion heading (rad, NaN), shape axis
+    (rad, NaN) and rms radius (px)."""
+    ng = gs.shape[0]
+    keep = np.zeros(ng, dtype=np.bool_)
+    whole_ = np.zeros(ng, dtype=np.bool_)
+    outl = np.zeros(ng, dtype=np.bool_)
+    uv = np.zeros((ng, 2))
+    vel = np.full((ng, 2), np.nan)
+    heading = np.full(ng, np.nan)
+    axis = np.full(ng, np.nan)
+    radius = np.zeros(ng)
+    for g in range(ng):
+        nev = gs[g, 0]
+        if npx[g] < min_area or nev < 3:
+            continue
+        keep[g] = True
+        a_lo = fit[g, 0]
+        a_hi = fit[g, 1]
+        l_lo = fit[g, 2]
+        l_hi = fit[g, 3]
+        # both edges (or a filled footprint): as long as most of a chassis, and wide
+        whole = a_hi - a_lo >= 0.6 * length and l_hi - l_lo >= 0.5 * width
+        whole_[g] = whole
+        xg = gs[g, 3] / gn[g]
+        yg = gs[g, 4] / gn[g]
+        if parts[g] == 1 and whole and not along[g] and not outline_filled:
+            # one filled cluster (a marked or textured robot): the event fit at activity end
+            if gtt[g] > 1e-12:
+                u = xg + bx[g] * (t_eval[g] - gtm[g])
+                v = yg + by[g] * (t_eval[g] - gtm[g])
+            else:
+                u = xg
+                v = yg
+        else:
+            outl[g] = True
+            # the outline's middle: between the leading and the trailing edge
+            a_c = 0.5 * (a_lo + a_hi)
+            hi = group_hint[g]
+            if not whole and hi >= 0 and along[g]:
+                # a lone edge: the robot lies half a chassis behind it (a leading edge)
+                # or ahead of it (a trailing one), whichever is nearer the prediction
+                a_h = hints[hi, 0] * ax[g] + hints[hi, 1] * ay[g]
+                back = a_hi - 0.5 * length
+                ahead = a_lo + 0.5 * length
+                a_c = back if abs(a_h - back) <= abs(a_h - ahead) else ahead
+            l_c = 0.5 * (l_lo + l_hi)
+            u = a_c * ax[g] - l_c * ay[g]
+            v = a_c * ay[g] + l_c * ax[g]
+        uv[g, 0] = min(max(u, 0.0), sensor_w - 1.0)
+        uv[g, 1] = min(max(v, 0.0), sensor_h - 1.0)
+        if gtt[g] > 1e-12:
+            # along the outline's axis when it gives one (the fit across it is timing skew)
+            if along[g]:
+                va = bx[g] * ax[g] + by[g] * ay[g]
+                vel[g, 0] = va * ax[g]
+                vel[g, 1] = va * ay[g]
+            else:
+                vel[g, 0] = bx[g]
+                vel[g, 1] = by[g]
+        if moving[g]:
+            heading[g] = math.atan2(ay[g], ax[g])
+        if whole and h_n[g] > 0 and math.hypot(h_re[g], h_im[g]) >= min_anisotropy * h_n[g]:
+            axis[g] = math.atan2(h_im[g], h_re[g]) / order
+            if order == 4:
+                axis[g] -= math.pi / 4   # the 4th harmonic points at the corners
+        radius[g] = math.sqrt(max(gs[g, 7] / gn[g] - xg * xg + gs[g, 8] / gn[g] - yg * yg, 0.0))
+    return keep, whole_, outl, uv, vel, heading, axis, radius
 
 
 @njit(cache=True, nogil=True)
@@ -561,7 +832,7 @@ class Detector:
                 k = k2
                 s = _cluster_moments(labels, pu, pv, cnt, st, st2, k)
         if cfg.group_edges:
-            return self._grouped(labels, k, s, pu, pv, cnt, on, st, t_ref_us, t_end_us, hints)
+            return self._grouped(labels, k, s, pu, pv, cnt, on, st, st2, t_ref_us, t_end_us, hints)
         npx = np.bincount(labels[labels >= 0], minlength=k)
         order = 4 if 0.8 <= cfg.chassis_aspect <= 1.25 else 2
         n_safe = np.maximum(s[:, 0], 1.0)
@@ -703,7 +974,7 @@ class Detector:
             worst = max(worst, v_along / v_across)
         return abs(dd - length) / length + worst
 
-    def _grouped(self, labels, k, s, pu, pv, cnt, on, st, t_ref_us: int, t_end_us: int,
+    def _grouped(self, labels, k, s, pu, pv, cnt, on, st, st2, t_ref_us: int, t_end_us: int,
                  hints) -> list[Detection]:
         """Detections of grouped clusters (``group_edges``), placed by a footprint fit."""
         cfg = self.config
@@ -728,144 +999,40 @@ class Detector:
         h = None if hints is None or not len(hints) else np.asarray(hints, dtype=float).reshape(-1, 2)
         grp, group_hint = self._group_clusters(k, tm, xm, ym, (n, cxt, cyt, ctt, cxx, cyy, cxy), onf, h)
         ng = len(group_hint)
-        gs = np.zeros((ng, 9))
-        np.add.at(gs, grp, s[:, :9])
-        gxt = np.bincount(grp, weights=cxt, minlength=ng)
-        gyt = np.bincount(grp, weights=cyt, minlength=ng)
-        gtt = np.bincount(grp, weights=ctt, minlength=ng)
-        gxx = np.bincount(grp, weights=cxx, minlength=ng)
-        gyy = np.bincount(grp, weights=cyy, minlength=ng)
-        parts = np.bincount(grp, minlength=ng)
-        glab = np.where(valid, grp[np.maximum(labels, 0)], -1)
-        npx = np.bincount(glab[valid], minlength=ng)
+        has_on = on is not None
+        # per group sums of its clusters' moments, its pixels and (polarity centroids: a plain
+        # shell's OFF and ON edges lie along the motion) their ON events
+        gs, gxt, gyt, gtt, gxx, gyy, gxy, parts, glab, npx, on_n, on_x, on_y = _group_sums(
+            grp, s, cxt, cyt, ctt, cxx, cyy, cxy, labels, on if has_on else np.zeros(0, np.int64), has_on, pu, pv, ng)
         t_end_rel = (int(t_end_us) - int(t_ref_us)) * 1e-6
-        ppm = self.px_per_m
-        min_speed = cfg.min_speed_mps * ppm
+        min_speed = cfg.min_speed_mps * self.px_per_m
         gn = np.maximum(gs[:, 0], 1.0)
         gtm = gs[:, 1] / gn
         gvt = np.maximum(gs[:, 2] / gn - gtm * gtm, 0.0)
-        gxy = np.bincount(grp, weights=cxy, minlength=ng)
-        # polarity centroids of each group: a plain shell's OFF and ON edges lie along the motion
-        w_on = on[valid].astype(float) if on is not None else None
-        if w_on is not None:
-            lv = glab[valid]
-            on_n = np.bincount(lv, weights=w_on, minlength=ng)
-            on_x = np.bincount(lv, weights=w_on * pu[valid], minlength=ng)
-            on_y = np.bincount(lv, weights=w_on * pv[valid], minlength=ng)
-        bx = np.zeros(ng)
-        by = np.zeros(ng)
-        sig = np.full(ng, math.nan)
-        t_eval = np.full(ng, t_end_rel)
-        ax = np.ones(ng)
-        ay = np.zeros(ng)
-        along_axis = np.zeros(ng, dtype=np.bool_)   # axis from the outline, not the velocity
-        moving = np.zeros(ng, dtype=np.bool_)
-        vel = np.zeros((ng, 2))
-        for g in range(ng):
-            if gtt[g] > 1e-12:
-                bx[g] = gxt[g] / gtt[g]
-                by[g] = gyt[g] / gtt[g]
-                res = max((gxx[g] + gyy[g] - bx[g] * gxt[g] - by[g] * gyt[g]) / gn[g], 1e-9)
-                sig[g] = math.sqrt(res / gtt[g])
-                # activity end: mean + sqrt(3) sd is the end of a uniform interval;
-                # a robot that stopped inside the window stays where it stopped
-                t_eval[g] = min(t_end_rel, gtm[g] + math.sqrt(3.0 * gvt[g]))
-            # the motion axis: the line from the ON to the OFF centroid when they are apart
-            # (two edges), else the short axis of an elongated part (an edge lies across the
-            # motion), else the velocity; the velocity only orients it (timestamps can skew)
-            got = False
-            if w_on is not None and 0 < on_n[g] < gs[g, 0]:
-                n_off = gs[g, 0] - on_n[g]
-                dx = (gs[g, 3] - on_x[g]) / n_off - on_x[g] / on_n[g]
-                dy = (gs[g, 4] - on_y[g]) / n_off - on_y[g] / on_n[g]
-                dd = math.hypot(dx, dy)
-                if dd >= 0.5 * length:
-                    ax[g], ay[g], got = dx / dd, dy / dd, True
-            if not got:
-                # eigenvectors of the pooled within-part covariance
-                a_, b_, c_ = gxx[g], gxy[g], gyy[g]
-                tr = a_ + c_
-                disc = math.sqrt(max(0.25 * (a_ - c_) ** 2 + b_ * b_, 0.0))
-                lmin, lmax = 0.5 * tr - disc, 0.5 * tr + disc
-                if lmax > 0 and lmax >= 3.0 * max(lmin, 0.0):
-                    # minor axis: eigenvector of lmin
-                    ex, ey = (b_, lmin - a_) if abs(b_) > 1e-12 else ((1.0, 0.0) if a_ <= c_ else (0.0, 1.0))
-                    en = math.hypot(ex, ey)
-                    ax[g], ay[g], got = ex / en, ey / en, True
-            if got:
-                along_axis[g] = True
-                va = bx[g] * ax[g] + by[g] * ay[g]
-                if va < 0:
-                    ax[g], ay[g], va = -ax[g], -ay[g], -va
-                moving[g] = not math.isnan(sig[g]) and va > min_speed and va > 3.0 * sig[g]
-                if moving[g]:
-                    vel[g] = va * ax[g], va * ay[g]
-            else:
-                sp = math.hypot(bx[g], by[g])
-                moving[g] = not math.isnan(sig[g]) and sp > min_speed and sp > 3.0 * sig[g]
-                if moving[g]:
-                    ax[g], ay[g] = bx[g] / sp, by[g] / sp
-                    vel[g] = bx[g], by[g]
-        fit = _outline_extent(glab, pu, pv, cnt, st, ng, ax, ay, vel[:, 0].copy(), vel[:, 1].copy(),
-                              t_eval, 4.0 * (length + width), 0.5, 0.02)
+        bx, by, sig, t_eval, ax, ay, along_axis, moving, vel = _group_axes(
+            gs, gn, gtm, gvt, gxt, gyt, gtt, gxx, gyy, gxy, on_n, on_x, on_y, has_on,
+            t_end_rel, length, min_speed)
+        fit = _outline_extent(glab, pu, pv, cnt, st, st2, ng, ax, ay, vel[:, 0].copy(), vel[:, 1].copy(),
+                              t_eval, 4.0 * (length + width), 0.5, 0.02, cfg.edge_flanks)
         order = 4 if 0.8 <= cfg.chassis_aspect <= 1.25 else 2
         h_re, h_im, h_n = _cluster_harmonic(glab, pu, pv, cnt, gs[:, 3] / gn, gs[:, 4] / gn, order, ng)
         min_area = cfg.min_area_chassis * self.chassis_px ** 2
+        hint_xy = h if h is not None else np.zeros((0, 2))
+        keep, whole, outl, uv, vel_px, heading, axis, radius = _group_poses(
+            gs, gn, gtm, gtt, npx, parts, np.asarray(group_hint, dtype=np.int64), hint_xy, fit, bx, by, t_eval,
+            ax, ay, along_axis, moving, h_re, h_im, h_n, min_area, length, width, cfg.outline_filled,
+            float(self.width), float(self.height), order, cfg.min_anisotropy)
+        t_end_us, t_ref_us = int(t_end_us), int(t_ref_us)
         dets = []
-        for g in range(ng):
-            nev = gs[g, 0]
-            if npx[g] < min_area or nev < 3:
-                continue
-            a_lo, a_hi, l_lo, l_hi = fit[g]
-            # both edges (or a filled footprint): as long as most of a chassis, and wide
-            whole = a_hi - a_lo >= 0.6 * length and l_hi - l_lo >= 0.5 * width
-            xg = gs[g, 3] / gn[g]
-            yg = gs[g, 4] / gn[g]
-            if parts[g] == 1 and whole and not along_axis[g]:
-                # one filled cluster (a marked or textured robot): the event fit at activity end
-                if gtt[g] > 1e-12:
-                    u = xg + bx[g] * (t_eval[g] - gtm[g])
-                    v = yg + by[g] * (t_eval[g] - gtm[g])
-                else:
-                    u, v = xg, yg
-            else:
-                # the outline's middle: between the leading and the trailing edge
-                a_c = 0.5 * (a_lo + a_hi)
-                hi = group_hint[g]
-                if not whole and hi >= 0 and along_axis[g]:
-                    # a lone edge: the robot lies half a chassis behind it (a leading edge)
-                    # or ahead of it (a trailing one), whichever is nearer the prediction
-                    a_h = h[hi, 0] * ax[g] + h[hi, 1] * ay[g]
-                    back, ahead = a_hi - 0.5 * length, a_lo + 0.5 * length
-                    a_c = back if abs(a_h - back) <= abs(a_h - ahead) else ahead
-                l_c = 0.5 * (l_lo + l_hi)
-                u = a_c * ax[g] - l_c * ay[g]
-                v = a_c * ay[g] + l_c * ax[g]
-            u = min(max(u, 0.0), self.width - 1.0)
-            v = min(max(v, 0.0), self.height - 1.0)
-            du = dv = math.nan
-            if gtt[g] > 1e-12:
-                # along the outline's axis when it gives one (the fit across it is timing skew)
-                if along_axis[g]:
-                    va = bx[g] * ax[g] + by[g] * ay[g]
-                    du, dv = va * ax[g], va * ay[g]
-                else:
-                    du, dv = bx[g], by[g]
-            heading, src = math.nan, ""
-            if moving[g]:
-                heading, src = math.atan2(ay[g], ax[g]), "motion"
-            axis = math.nan
-            if whole and h_n[g] > 0 and math.hypot(h_re[g], h_im[g]) >= cfg.min_anisotropy * h_n[g]:
-                axis = math.atan2(h_im[g], h_re[g]) / order
-                if order == 4:
-                    axis -= math.pi / 4   # the 4th harmonic points at the corners
-            radius = math.sqrt(max(gs[g, 7] / gn[g] - xg * xg + gs[g, 8] / gn[g] - yg * yg, 0.0))
-            dets.append(Detection(u=u, v=v, t_us=int(t_end_us), n_events=int(nev), n_pixels=int(npx[g]),
-                                  du=du, dv=dv, speed_sigma=float(sig[g]), heading=heading, heading_source=src,
-                                  radius=radius, t_vel_us=int(t_ref_us) + int(round(gtm[g] * 1e6)),
-                                  shape_axis=axis, shape_order=order,
-                                  t_act_us=int(t_ref_us) + int(round(t_eval[g] * 1e6)),
-                                  whole=bool(whole), n_parts=int(parts[g])))
+        for g in np.nonzero(keep)[0].tolist():
+            hd = float(heading[g])
+            dets.append(Detection(u=float(uv[g, 0]), v=float(uv[g, 1]), t_us=t_end_us, n_events=int(gs[g, 0]),
+                                  n_pixels=int(npx[g]), du=float(vel_px[g, 0]), dv=float(vel_px[g, 1]),
+                                  speed_sigma=float(sig[g]), heading=hd,
+                                  heading_source="" if math.isnan(hd) else "motion", radius=float(radius[g]),
+                                  t_vel_us=t_ref_us + int(round(gtm[g] * 1e6)), shape_axis=float(axis[g]),
+                                  shape_order=order, t_act_us=t_ref_us + int(round(t_eval[g] * 1e6)),
+                                  whole=bool(whole[g]), n_parts=int(parts[g]), outline=bool(outl[g])))
         return dets
 
     def _split(self, labels, k, s, pu, pv, hints):

@@ -133,6 +133,12 @@ class FleetConfig:
         robust_heading: the heading and pose filter for partial clusters, slow spins, lagged
             velocities and stops (see :meth:`_Track._update_yaw`); False restores the previous
             filter (kept for A/B comparisons).
+        activity_prior: with ``robust_heading``, a detection whose activity ended before the
+            window's end (``Observation.t_act_us``: a robot slowing down or stopped) widens the
+            filter's position variance by its velocity times that time, squared: the filter
+            drove on since then unseen (an event camera sees every motion), so the detection
+            counts more. False: the position prior is trusted as it is (the track overshot a
+            stop by ~1 cm and stood there).
     """
 
     chassis_m: float = 0.10
@@ -155,6 +161,7 @@ class FleetConfig:
     max_speed_mps: float = 0.6
     sparse_fraction: float = 0.3
     robust_heading: bool = True
+    activity_prior: bool = True
 
     def validate(self) -> None:
         for name in ("chassis_m", "gate_m", "accel_mps2", "pos_sigma_m", "vel_sigma_mps",
@@ -316,6 +323,12 @@ class _Track:
         sparse = 0 < ob.n_events < cfg.sparse_fraction * self.n_usual
         if sparse:   # part of the outline: its centroid is off; little motion
             r *= (cfg.sparse_fraction * self.n_usual / ob.n_events) ** 2
+        if cfg.activity_prior and cfg.robust_heading and ob.t_act_us is not None and ob.t_us > ob.t_act_us:
+            # no events since the activity ended: the filter's motion since then is unseen (an
+            # event camera sees every motion), so its position may be off by up to that motion
+            tau = (ob.t_us - ob.t_act_us) * 1e-6
+            self.ax.pp += (self.ax.v * tau) ** 2
+            self.ay.pp += (self.ay.v * tau) ** 2
         self.ax.update_p(ob.x, r)
         self.ay.update_p(ob.y, r)
         at_rest = ob.t_act_us is not None and ob.t_us - ob.t_act_us > _REST_US

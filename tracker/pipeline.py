@@ -140,9 +140,19 @@ class Pipeline:
         obs = [self._observation(d) for d in dets]
         return self.tracker.update(obs, t_end_us)
 
+    #: correct an outline-placed detection's parallax for half the robot's visible height (its
+    #: silhouette reaches from the ground on the side facing the nadir to the top edge on the far
+    #: side, so its middle is seen half as high); False: the full height for every detection
+    outline_parallax: bool = True
+
     def _observation(self, d: Detection) -> Observation:
         cal = self.calibration
         k = self.parallax
+        if d.outline and self.outline_parallax and k != 1.0:
+            # the height k corrects for, halved: k = (H - h)/(H - h_cal) -> (H - h/2)/(H - h_cal)
+            span = self.camera_height_m - cal.height_m
+            h = self.camera_height_m - k * span
+            k = (self.camera_height_m - 0.5 * h) / span
         x, y = cal.point_to_arena(d.u, d.v)
         x = self._nadir[0] + (x - self._nadir[0]) * k
         y = self._nadir[1] + (y - self._nadir[1]) * k
