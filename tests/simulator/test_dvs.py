@@ -197,7 +197,9 @@ def test_roi_simulation_matches_full_frame_simulation():
     """Simulating only around the robots gives the events of simulating every pixel."""
     cam = CeilingCamera(160, 120)
     f = lambda t: (0.5 + 0.3 * t, 0.9 + 0.1 * t, 0.8 * t)          # drive and turn
-    roi, sig_roi, _ = run_path(f, 0.5, cam=cam)
+    # the scene traced every step in both (a flickering light traces every pixel every step)
+    roi, sig_roi, _ = run_path(f, 0.5, cam=cam, params=DvsParams(noise_rate_hz=0.0, hot_pixels=0, leak_rate_hz=0.0,
+                                                                 trace_every=1))
     full_params = DvsParams(noise_rate_hz=0.0, hot_pixels=0, leak_rate_hz=0.0, flicker_hz=1.0,
                             flicker_depth=0.0)
     full, sig_full, _ = run_path(f, 0.5, cam=cam, params=full_params)
@@ -245,3 +247,20 @@ def test_warm_up_leaves_the_served_world_untouched():
     assert world.t == 0.0
     assert np.array_equal(world.poses(), before)
     assert world.power(0) == (0, 0) and world.power(1) == (0, 0)
+
+
+def test_the_scene_traced_every_other_step_keeps_the_events_of_tracing_every_step():
+    """trace_every=2 (the default) holds each pixel's reflectance for one step: the same edges,
+    within a step of the same times, and nearly the same number of events."""
+    cam = CeilingCamera(160, 120)
+    f = lambda t: (0.5 + 0.46 * t, 0.9, 0.0)          # full speed, straight
+    base = dict(noise_rate_hz=0.0, hot_pixels=0, leak_rate_hz=0.0)
+    every, _, _ = run_path(f, 0.4, cam=cam, params=DvsParams(**base, trace_every=1))
+    held, _, _ = run_path(f, 0.4, cam=cam, params=DvsParams(**base))
+    assert DvsParams().trace_every == 2 and len(every) > 500
+    assert len(held) == pytest.approx(len(every), rel=0.03)
+    key = lambda e, dt: set(zip(e["x"].tolist(), e["y"].tolist(), e["p"].tolist(), ((e["t"] + dt) // 2000).tolist()))
+    a = key(every, 0) | key(every, 1000)
+    assert len(key(held, 0) & a) > 0.9 * len(key(held, 0))
+    with pytest.raises(ValueError, match="trace_every"):
+        DvsParams(trace_every=0).validate()
