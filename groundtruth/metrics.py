@@ -132,10 +132,13 @@ def _column(header: list[str], rows: list[list[str]], name: str, kind: str, path
                 out.append(default)
             else:
                 out.append(int(float(s)) if ("." in s or "e" in s.lower()) else int(s))
-        except ValueError:
-            raise CsvFormatError(f"{path}: line {i + 2}, column {name}: cannot read {s!r} as "
+        except (ValueError, OverflowError):
+            raise CsvFormatError(f"{path}: line {i + 2}, column {name}: cannot read {s[:40]!r} as "
                                  f"{ {'i': 'an integer', 'f': 'a number'}[kind] }") from None
-    return np.asarray(out, dtype=object if kind == "s" else (np.float64 if kind == "f" else np.int64))
+    try:
+        return np.asarray(out, dtype=object if kind == "s" else (np.float64 if kind == "f" else np.int64))
+    except OverflowError:   # an integer beyond 64 bits
+        raise CsvFormatError(f"{path}: column {name}: a value is out of range for a 64-bit integer") from None
 
 
 def read_tracks_csv(path: str | Path, clock: str = "sensor") -> np.ndarray:

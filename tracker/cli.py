@@ -387,7 +387,11 @@ def run_calibrate(args) -> int:
     except CalibrationError as exc:
         raise fail(f"arena calibrate: {exc}") from None
     notes = _camera_geometry(args, cal)
-    cal.save(args.output)
+    try:
+        cal.save(args.output)
+    except OSError as exc:
+        raise fail(f"arena calibrate: cannot write {args.output}: {exc.strerror or exc} (check the folder exists "
+                   "and is writable)") from None
     preview = args.preview or str(Path(args.output).with_suffix(".png"))
     if image is None:
         image = np.full((cal.image_size[1], cal.image_size[0]), 255, np.uint8)

@@ -284,3 +284,17 @@ def test_eval_on_the_host_clock_lines_tracks_up_with_host_stamped_truth(files, t
     plain.write_text("\n".join(lines) + "\n")
     r = arena("eval", "--tracks", plain, "--truth", gh, "--track-clock", "host")
     assert r.returncode == 2 and "no row has a host_ns" in r.stderr
+
+
+def test_host_clock_rows_out_of_range_or_missing_are_named(files, tmp_path):
+    tp, gp = files
+    lines = tp.read_text().splitlines()
+    huge = tmp_path / "huge.csv"
+    huge.write_text("\n".join([lines[0] + ",host_ns"] + [ln + ",9" * 1 + "9" * 40 for ln in lines[1:]]) + "\n")
+    r = arena("eval", "--tracks", huge, "--truth", gp, "--track-clock", "host")
+    assert r.returncode == 2 and "host_ns" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    mixed = tmp_path / "mixed.csv"
+    mixed.write_text("\n".join([lines[0] + ",host_ns"] + [ln + ("," + str(int(ln.split(",")[0]) * 1000) if k % 2 else ",")
+                                                          for k, ln in enumerate(lines[1:])]) + "\n")
+    r = arena("eval", "--tracks", mixed, "--truth", gp, "--track-clock", "host")
+    assert "200 of 400 rows; 200 without a host_ns" in r.stdout, r.stdout + r.stderr

@@ -154,3 +154,10 @@ def test_arena_calibrate_from_events_of_a_still_mat_says_what_to_do(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "flicker" in r.stderr and "--image" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "c.json").exists()
+
+
+def test_arena_calibrate_into_a_missing_folder_is_one_clear_line(tmp_path):
+    r = subprocess.run(arena_cmd("calibrate", "--size", "640x480", "--points", "112,431:0,0", "528,431:1.83,0",
+                                 "528,15:1.83,1.83", "112,15:0,1.83", "-o", str(tmp_path / "no" / "c.json")),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "cannot write" in r.stderr and "Traceback" not in r.stderr, r.stderr
