@@ -366,6 +366,19 @@ class _Track:
         elif self.state == COASTING:
             self.state = CONFIRMED
 
+    def _rest_reference(self, ob: Observation) -> int:
+        """The time the window's measurements refer to: its end, or the end of its activity when
+        the robot stopped inside it (no events for a while before the end). On the first such
+        window the heading the filter carried on at its yaw rate since then is taken back."""
+        at_rest = ob.t_act_us is not None and ob.t_us - ob.t_act_us > _REST_US
+        if at_rest:
+            if not self._at_rest and not math.isnan(self.yaw):
+                self.yaw = _wrap(self.yaw - self.yaw_rate * (ob.t_us - ob.t_act_us) * 1e-6)
+                self._rest_rate = self.yaw_rate
+            self.yaw_rate = self._rest_rate
+        self._at_rest = at_rest
+        return ob.t_act_us if at_rest else ob.t_us
+
     def _update_yaw(self, ob: Observation, sparse: bool = False) -> None:
         """Heading filter. Two measurements, both at the window's mean event time ``t_vel``
         (the filter's yaw rate carries them to the pose time, so the heading does not lag):
@@ -377,15 +390,8 @@ class _Track:
         # the heading the filter carried on at its yaw rate since then (else a robot braking
         # out of a circle keeps turning in the filter); the window's measurements, at its mean
         # event time, are carried to the stop at the rate before it; the rate is then zero.
-        t_ref = ob.t_us
-        at_rest = ob.t_act_us is not None and ob.t_us - ob.t_act_us > _REST_US
-        if at_rest:
-            t_ref = ob.t_act_us
-            if not self._at_rest and not math.isnan(self.yaw):
-                self.yaw = _wrap(self.yaw - self.yaw_rate * (ob.t_us - ob.t_act_us) * 1e-6)
-                self._rest_rate = self.yaw_rate
-            self.yaw_rate = self._rest_rate
-        self._at_rest = at_rest
+        t_ref = self._rest_reference(ob)
+        at_rest = self._at_rest
         lag = ((t_ref - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
         speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) else math.inf
         spinning = not math.isnan(self.yaw) and abs(self.yaw_rate) * self.cfg.spin_radius_m > speed
@@ -466,15 +472,8 @@ class _Track:
         """
         cfg = self.cfg
         whole = bool(getattr(ob, "whole", True))
-        t_ref = ob.t_us
-        at_rest = ob.t_act_us is not None and ob.t_us - ob.t_act_us > _REST_US
-        if at_rest:
-            t_ref = ob.t_act_us
-            if not self._at_rest and not math.isnan(self.yaw):
-                self.yaw = _wrap(self.yaw - self.yaw_rate * (ob.t_us - ob.t_act_us) * 1e-6)
-                self._rest_rate = self.yaw_rate
-            self.yaw_rate = self._rest_rate
-        self._at_rest = at_rest
+        t_ref = self._rest_reference(ob)
+        at_rest = self._at_rest
         lag = max(0.0, (t_ref - ob.t_vel_us) * 1e-6) if ob.t_vel_us is not None else 0.0
         speed = math.hypot(ob.vx, ob.vy) if math.isfinite(ob.vx) and math.isfinite(ob.vy) else 0.0
         period = 2.0 * math.pi / max(1, ob.shape_order)
