@@ -42,7 +42,11 @@ _HEADER = struct.Struct("<4sIqIIIIII")
 _MAGIC = b"EVW1"
 _MAX_X = 2048
 _LEVEL = 1
+#: an empty plane, read-only like the decompressed ones: numba compiles one specialisation per
+#: combination of writable and read-only arguments, so a writable empty escape stream cost a
+#: compile in the middle of a live stream the first time one turned up
 _EMPTY = np.empty(0, np.uint8)
+_EMPTY.setflags(write=False)
 
 
 class CodecError(ValueError):

@@ -61,16 +61,21 @@ def warm_up(make_filters, width: int, height: int, codec: str, slice_us: int = 1
     """Run throw-away filters (``make_filters()``: fresh instances, so no learnt state is
     touched), the EVT 3.0 decoder and the window codec over a few synthetic slices, so their
     numba kernels are compiled (or loaded from numba's cache) before the first real events: on
-    a fresh install that takes seconds, during which a live edge would drop windows."""
+    a fresh install that takes seconds, during which a live edge would drop windows.
+
+    Chunks and windows of zero and one event are run too: numba types an array of at most one
+    element as contiguous, a separate specialisation that a live edge would otherwise compile
+    the first time a chunk holds only time words or a window is empty."""
     from arena.codec import encode
     from arena.events import make_events
-    from arena.formats.evt3 import decode_evt3, encode_evt3
+    from arena.formats.evt3 import Evt3Decoder, decode_evt3, encode_evt3
 
     rng = np.random.default_rng(0)
     n = 2000
     t = np.sort(rng.integers(0, 3 * slice_us, n))
     ev = make_events(rng.integers(0, width, n), rng.integers(0, height, n), rng.integers(0, 2, n), t)
-    ev = decode_evt3(encode_evt3(ev))
-    pipe = EdgePipeline(make_filters(), slice_us=slice_us)
-    for w in pipe.push(ev, 3 * slice_us) + pipe.flush():
-        encode(w.events, codec, t_ref_us=w.t_start_us)
+    time_words = np.array([0x8000, 0x6000 | 5], "<u2").tobytes()   # a chunk of time words only
+    for chunk in (decode_evt3(encode_evt3(ev)), decode_evt3(encode_evt3(ev[:1])), Evt3Decoder().feed(time_words)):
+        pipe = EdgePipeline(make_filters(), slice_us=slice_us)
+        for w in pipe.push(chunk, 3 * slice_us) + pipe.flush():
+            encode(w.events, codec, t_ref_us=w.t_start_us)

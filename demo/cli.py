@@ -394,12 +394,12 @@ def _compile_kernels(sup: Supervisor) -> bool:
     left to the services, the compiles competed with each other and with the running simulator,
     and the first track came after about a minute. Later runs load them from numba's cache.
     Returns whether it compiled anything."""
-    from demo.warmup import PARTS, kernels_cached
+    from demo.warmup import PARTS, mark_warmed_up, warmed_up
 
-    if kernels_cached():
+    if warmed_up():
         return False
-    print("compiling the numba kernels once after installing (about 15 s on 2 cores; "
-          "later runs skip this)", flush=True)
+    print("compiling the numba kernels once after installing or updating (about 15 s on 2 cores, "
+          "a few when numba's cache has most of them; later runs skip this)", flush=True)
     t0 = time.monotonic()
     procs = [sup.start(ProcSpec(f"cmd-compile-{part}", [sys.executable, "-m", "demo.warmup", part]), wait=False)
              for part in PARTS]
@@ -411,6 +411,7 @@ def _compile_kernels(sup: Supervisor) -> bool:
         if proc.popen.returncode != 0:
             raise RuntimeError(f"compiling the kernels failed ({proc.spec.name} exited with "
                                f"{proc.popen.returncode}); see {proc.log_path}")
+    mark_warmed_up()
     print(f"kernels compiled in {time.monotonic() - t0:.0f} s", flush=True)
     return True
 

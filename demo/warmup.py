@@ -58,6 +58,60 @@ def kernels_cached(kernels: tuple[str, ...] = KERNELS) -> bool:
     return True
 
 
+#: the packages whose kernels the warm-up compiles (their sources make up its fingerprint)
+PACKAGES = ("arena", "camera_edge", "tracker", "simulator")
+STAMP = "arena-demo-warmup.json"
+
+
+def _fingerprint() -> dict:
+    """What the warm-up's cache depends on: numba's and Python's versions, and the size and
+    modification time of every source file of :data:`PACKAGES` (numba's own test of a stale
+    cache entry, applied to all of them at once)."""
+    from importlib.metadata import version
+
+    files = {}
+    for pkg in PACKAGES:
+        spec = importlib.util.find_spec(pkg)
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        root = Path(list(spec.submodule_search_locations)[0])
+        for f in sorted(root.rglob("*.py")):
+            st = f.stat()
+            files[str(f.relative_to(root.parent))] = [st.st_size, st.st_mtime_ns]
+    return {"numba": version("numba"), "python": sys.version.split()[0], "files": files}
+
+
+def _stamp_path() -> Path:
+    return numba_cache_dirs(Path(__file__).resolve().parent)[0] / STAMP
+
+
+def warmed_up() -> bool:
+    """True when the demo's own warm-up (:func:`compile_all` or ``arena demo --prepare``) ran on
+    the current sources and numba still holds its kernels. Index files alone do not say enough:
+    a test or a bench that compiled a kernel for other argument types leaves one, and the
+    demo's services then compiled the missing specialisations while the simulator ran (a 2-core
+    machine fell 2.3 s behind real time)."""
+    import json
+
+    try:
+        stamp = json.loads(_stamp_path().read_text())
+    except (OSError, ValueError):
+        return False
+    return stamp == _fingerprint() and kernels_cached()
+
+
+def mark_warmed_up() -> None:
+    """Record that the warm-up ran on the current sources (see :func:`warmed_up`)."""
+    import json
+
+    path = _stamp_path()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(_fingerprint()))
+    except OSError:   # a read-only cache: the demo warms up again next time, which is only slower
+        pass
+
+
 def compile_sim_edge() -> None:
     """The simulator's kernels, then the edge's (the halves take about as long: ~11 s each)."""
     from arena.codec import DEFAULT_CODEC

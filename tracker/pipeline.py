@@ -196,6 +196,12 @@ def warm_up(make_pipeline, n_slices: int = 12) -> None:
             for codec in CODECS:
                 decode(codec, encode(ev, codec), ev.size)
         pipe.push(ev, (k + 1) * 10_000)
+    # windows of zero and one event: numba types an array of at most one element as contiguous,
+    # a separate specialisation a live tracker would otherwise compile on its first empty window
+    for k, ev in enumerate((ev[:0], ev[:1])):
+        for codec in CODECS:
+            decode(codec, encode(ev, codec), ev.size)
+        make_pipeline().push(ev, (n_slices + k + 1) * 10_000)
 
 
 def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | None = None, *,
