@@ -43,7 +43,37 @@ __all__ = [
     "parse_service_options",
     "apply_service_options",
     "fill_service_options",
+    "CAMERA_HEIGHT_RANGE_M",
+    "NADIR_MAX_ARENAS",
+    "ROBOT_HEIGHT_MAX_CM",
+    "ARUCO_MARKER_IDS",
+    "nadir_distance_m",
 ]
+
+#: Physical range of a ceiling camera's lens height above the mats, m (inclusive). Below 0.3 m a
+#: lens sees a few tens of cm of floor (a 90 deg lens: 0.6 m), not an arena; 20 m is the ceiling
+#: of a tall sports hall or warehouse, where the VGA lens that shows a 1.83 m arena 450 px wide
+#: from 2.5 m shows a 10 cm robot 3 px wide. A height outside it is a mistyped unit (cm or mm for
+#: m) or a broken estimate (e.g. from a wrong focal length), not a lab.
+CAMERA_HEIGHT_RANGE_M = (0.3, 20.0)
+#: The farthest a camera's nadir (the arena point under its lens) may lie outside the arena
+#: rectangle, in arena sides (its longer side): 2 sides off, a camera 2.5 m above a 1.83 m arena
+#: sees the arena's far edge 66 deg off the vertical; farther is a wrong sign, unit or frame.
+NADIR_MAX_ARENAS = 2.0
+#: Robots are seen below this height, cm (exclusive; the tracker's ``--robot-height-cm`` bound).
+ROBOT_HEIGHT_MAX_CM = 100.0
+#: Marker ids the lab's ArUco dictionary (DICT_4X4_50: printed by ``arena sim --markers``, detected
+#: by ``arena groundtruth --detector aruco``) has: 0..49.
+ARUCO_MARKER_IDS = 50
+
+
+def nadir_distance_m(nadir_m, size_m) -> float:
+    """Distance (m) from the point ``nadir_m`` (x, y) to the arena rectangle [0, w] x [0, h]
+    (0 inside it)."""
+    (x, y), (w, h) = nadir_m, size_m
+    dx = max(0.0 - x, 0.0, x - w)
+    dy = max(0.0 - y, 0.0, y - h)
+    return math.hypot(dx, dy)
 
 #: Shell colours that may be given by name (RGB, 0-255).
 NAMED_COLOURS: dict[str, tuple[int, int, int]] = {
@@ -209,7 +239,7 @@ class ServiceOption:
     ``"int"``, ``"float"`` (an integer is accepted and becomes a float), ``"bool"``,
     ``"strings"`` (a list of strings; one string is a list of one), or alternatives joined by
     ``|`` (``"int|bool"``). ``lo``/``hi``: inclusive bounds of a number; ``positive``: > 0;
-    ``choices``: allowed strings. ``dest``: the attribute of the service's command-line
+    ``hi_open``: ``hi`` is excluded; ``choices``: allowed strings. ``dest``: the attribute of the service's command-line
     namespace the option fills (default: the option's own name). ``default``: the value used
     when neither the flag nor the lab file gives one (None: the service decides).
     """
@@ -222,6 +252,7 @@ class ServiceOption:
     hi: float | None = None
     positive: bool = False
     dest: str | None = None
+    hi_open: bool = False   # ``hi`` is excluded: [lo, hi)
 
     def expected(self) -> str:
         """What a valid value looks like, for error messages."""
@@ -232,11 +263,11 @@ class ServiceOption:
                 if self.positive:
                     what += " > 0"
                 elif self.lo is not None and self.hi is not None:
-                    what += f" in [{self.lo:g}, {self.hi:g}]"
+                    what += f" in [{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
                 elif self.lo is not None:
                     what += f" >= {self.lo:g}"
                 elif self.hi is not None:
-                    what += f" <= {self.hi:g}"
+                    what += f" {'<' if self.hi_open else '<='} {self.hi:g}"
                 out.append(what)
             elif kind == "bool":
                 out.append("true or false")
@@ -262,6 +293,8 @@ class ServiceOption:
                 if not _finite(value) or (self.positive and value <= 0):
                     continue
                 if (self.lo is not None and value < self.lo) or (self.hi is not None and value > self.hi):
+                    continue
+                if self.hi_open and value >= self.hi:
                     continue
                 return True, (float(value) if kind == "float" else value)
             elif kind == "strings":
@@ -315,10 +348,11 @@ SERVICE_OPTIONS: dict[str, dict[str, ServiceOption]] = {
         "accumulation_ms": _opt("float", 100.0, "accumulation time t_a, ms", positive=True),
         "chassis_cm": _opt("float", 10.0, "robot footprint side, cm", positive=True),
         "robot_height_cm": _opt("float", None, "visible height of the robots, cm (default: the [[robots]]' "
-                                "robot_height_cm, else 3.2: a Zumo's event cloud)", lo=0, hi=100),
+                                "robot_height_cm, else 3.2: a Zumo's event cloud)", lo=0, hi=ROBOT_HEIGHT_MAX_CM,
+                                hi_open=True),
         "camera_height_m": _opt("float", None, "lens height above the mats, m (default: the camera's or its "
                                 "calibration's camera_height_m, else 2.5 assumed with a warning)",
-                                positive=True),
+                                lo=CAMERA_HEIGHT_RANGE_M[0], hi=CAMERA_HEIGHT_RANGE_M[1]),
         "fleet_size": _opt("int", None, "number of robots (default: the lab's [[robots]])", lo=1),
         "queue": _opt("int", 100, "live: newest slices kept when lagging", lo=1),
         "names_from_groundtruth": _opt("bool", True, "live: name tracks after arena/groundtruth/* poses"),
@@ -553,13 +587,35 @@ def parse_lab_config(data: dict, source: str = "lab config", base_dir: Path | No
     lab = LabConfig(path=source)
     lab.arena = _parse_arena(root.sub("arena"))
     lab.zenoh = _parse_zenoh(root.sub("zenoh"))
-    lab.cameras = _parse_cameras(root, base_dir)
+    lab.cameras = _parse_cameras(root, base_dir, lab.arena.size_m)
     if "webcam" in data:
         lab.webcam = _parse_webcam(root.sub("webcam"), base_dir)
     lab.robots = _parse_robots(root)
     for role, opts in root.sub("services").table.items():
         lab.services[role] = parse_service_options(role, opts, source)
+    _check_heights(lab, source)
     return lab
+
+
+def _check_heights(lab: LabConfig, source: str) -> None:
+    """Every lens height the file gives is above every robot height it gives (the parallax
+    correction divides by their difference), named by their keys."""
+    tracker = lab.services.get("tracker", {})
+    robots = [(f"robots[{i}].robot_height_cm", r.robot_height_cm) for i, r in enumerate(lab.robots)
+              if r.robot_height_cm is not None]
+    if tracker.get("robot_height_cm") is not None:
+        robots.append(("services.tracker.robot_height_cm", tracker["robot_height_cm"]))
+    lenses = [(f"cameras[{i}].camera_height_m", c.camera_height_m) for i, c in enumerate(lab.cameras)
+              if c.camera_height_m is not None]
+    if tracker.get("camera_height_m") is not None:
+        lenses.append(("services.tracker.camera_height_m", tracker["camera_height_m"]))
+    if not robots or not lenses:
+        return
+    rkey, rcm = max(robots, key=lambda kv: kv[1])
+    for key, h in lenses:
+        if not h > rcm / 100.0:
+            raise ConfigError(f"{source}: {key}: expected a lens height above the robots ({rkey} = {rcm:g} cm), "
+                              f"got {h:g} m")
 
 
 def _parse_arena(a: _Reader) -> ArenaConfig:
@@ -603,7 +659,8 @@ def _tables(root: _Reader, key: str) -> list[_Reader]:
     return out
 
 
-def _parse_cameras(root: _Reader, base_dir: Path | None) -> list[CameraConfig]:
+def _parse_cameras(root: _Reader, base_dir: Path | None,
+                   size_m: tuple[float, float] = (1.83, 1.83)) -> list[CameraConfig]:
     cameras: list[CameraConfig] = []
     for r in _tables(root, "cameras"):
         r.unknown(("name", "width", "height", "source", "calibration", "points", "camera_height_m", "nadir_m"))
@@ -611,12 +668,22 @@ def _parse_cameras(root: _Reader, base_dir: Path | None) -> list[CameraConfig]:
         if any(c.name == name for c in cameras):
             raise r._err("name", "a name not used by another camera", name)
         calib, calib_file = _calibration(r, base_dir)
+        camera_h = r.table.get("camera_height_m")
+        lo, hi = CAMERA_HEIGHT_RANGE_M
+        if camera_h is not None and (isinstance(camera_h, bool) or not isinstance(camera_h, (int, float))
+                                     or not _finite(camera_h) or not lo <= camera_h <= hi):
+            raise r._err("camera_height_m", f"the lens height above the mats in [{lo:g}, {hi:g}] m", camera_h)
+        camera_h = None if camera_h is None else float(camera_h)
+        nadir = r.pair("nadir_m", None)
+        if nadir is not None and nadir_distance_m(nadir, size_m) > NADIR_MAX_ARENAS * max(size_m):
+            raise r._err("nadir_m", f"the arena point [x, y] m under the lens, within {NADIR_MAX_ARENAS:g} arena "
+                         f"sides ({NADIR_MAX_ARENAS * max(size_m):g} m) of the arena [0, {size_m[0]:g}] x "
+                         f"[0, {size_m[1]:g}] m", list(nadir))
         cameras.append(CameraConfig(name=name, width=r.int("width", 640, lo=1, hi=65535),
                                     height=r.int("height", 480, lo=1, hi=65535),
                                     source=r.str("source", None), calibration=calib,
                                     calibration_file=calib_file,
-                                    camera_height_m=r.float("camera_height_m", None, positive=True),
-                                    nadir_m=r.pair("nadir_m", None)))
+                                    camera_height_m=camera_h, nadir_m=nadir))
     return cameras
 
 
@@ -643,7 +710,11 @@ def _parse_robots(root: _Reader) -> list[RobotConfig]:
             raise r._err("name", "any name but 'all' (reserved for commands to every robot)", name)
         if any(rb.name == name for rb in robots):
             raise r._err("name", "a name not used by another robot", name)
-        marker = r.int("marker_id", None, lo=0, hi=999)
+        marker = r.table.get("marker_id")
+        if marker is not None and (isinstance(marker, bool) or not isinstance(marker, int)
+                                   or not 0 <= marker < ARUCO_MARKER_IDS):
+            raise r._err("marker_id", f"an integer in [0, {ARUCO_MARKER_IDS - 1}] (the ids of the ArUco dictionary "
+                         f"DICT_4X4_50) for robot {name!r}", marker)
         if marker is not None and any(rb.marker_id == marker for rb in robots):
             raise r._err("marker_id", "a marker id not used by another robot", marker)
         hsv = _hsv_range(r)
@@ -654,8 +725,19 @@ def _parse_robots(root: _Reader) -> list[RobotConfig]:
             track_width_m=r.float("track_width_m", 0.09, positive=True),
             counts_per_rev=r.int("counts_per_rev", 1807, lo=1),
             length_m=r.float("length_m", 0.10, positive=True), width_m=r.float("width_m", 0.10, positive=True),
-            hsv_range=hsv, robot_height_cm=r.float("robot_height_cm", None, lo=0, hi=100)))
+            hsv_range=hsv, robot_height_cm=_robot_height(r)))
     return robots
+
+
+def _robot_height(r: _Reader) -> float | None:
+    """``robot_height_cm``: in [0, :data:`ROBOT_HEIGHT_MAX_CM`) cm (what the tracker accepts)."""
+    v = r.table.get("robot_height_cm")
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not _finite(v) or not 0 <= v < ROBOT_HEIGHT_MAX_CM:
+        raise r._err("robot_height_cm", f"a finite number in [0, {ROBOT_HEIGHT_MAX_CM:g}) cm (the height at which "
+                     "the ceiling camera sees the robot; a Zumo: 3.2)", v)
+    return float(v)
 
 
 def _hsv_range(r: _Reader) -> tuple | None:

@@ -146,14 +146,22 @@ def read_tracks_csv(path: str | Path, clock: str = "sensor") -> np.ndarray:
 
     Required columns: ``t_us,track_id,x_m,y_m``; the others of :data:`TRACK_COLUMNS` are optional.
     ``clock="host"``: ``t_us`` becomes the rows' host capture time (the ``host_ns`` column of live
-    tracks, µs since the epoch); rows without one are left out, and a file with none is an error.
+    tracks, µs since the epoch); rows without one (an empty cell) are left out, a file with none
+    is an error, and so is a negative one (a broken value, not an absent one).
     Raises :class:`CsvFormatError` for a missing or empty file, a wrong header or a bad value.
     """
     if clock not in ("sensor", "host"):
         raise ValueError(f"clock must be 'sensor' or 'host', got {clock!r}")
     header, rows = _read_csv(path, TRACK_REQUIRED, "tracks")
     if clock == "host":
-        host = _column(header, rows, "host_ns", "i", path, default=-1)
+        host = _column(header, rows, "host_ns", "i", path, default=-1)   # an empty cell: -1, absent
+        if "host_ns" in header:   # a host time before the epoch is a broken value, not an absent one
+            j = header.index("host_ns")
+            bad = [i for i, r in enumerate(rows) if host[i] < 0 and j < len(r) and r[j].strip()]
+            if bad:
+                raise CsvFormatError(f"{path}: line {bad[0] + 2}, column host_ns: {rows[bad[0]][j].strip()[:40]} "
+                                     "is negative (ns since the Unix epoch, >= 0; leave the cell empty when "
+                                     "the host time is unknown)")
         if not (host >= 0).any():
             raise CsvFormatError(f"{path}: no row has a host_ns (tracks of a file replayed faster than real "
                                  "time, or of an older tracker): score on the sensor clock")

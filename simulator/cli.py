@@ -29,6 +29,8 @@ log = logging.getLogger("simulator")
 # Kept equal to simulator.autopilot.PATTERNS and simulator.world.LIGHTING_LEVELS (tested).
 PATTERN_CHOICES = ("circle", "square", "stopgo", "cross", "figure8", "still")
 LIGHTING_CHOICES = ("full", "dimmed", "dark")
+#: Ids of the ArUco dictionary printed on the shells (DICT_4X4_50): 0..49.
+MARKER_IDS = 50
 
 
 EXAMPLES = """\
@@ -132,6 +134,10 @@ def _robots_from_args(args) -> tuple[list, dict]:
             src = urlparse(cam.source or "")
             if args.camera_port is None and src.scheme == "tcp" and src.port:
                 opts["camera_port"] = src.port
+        for r in lab.robots:   # the camera prints DICT_4X4_50 markers: ids 0..49 (the lab check says so too)
+            if r.marker_id is not None and not 0 <= r.marker_id < MARKER_IDS:
+                raise fail(f"arena sim: lab config {args.lab}: robot {r.name!r} has marker_id {r.marker_id}; "
+                           f"the ArUco dictionary DICT_4X4_50 has ids 0..{MARKER_IDS - 1}")
         n = args.robots if args.robots is not None else len(lab.robots)
         plans = make_plans(pattern, n, lab.arena.size_m[0])
         specs = []
@@ -172,8 +178,9 @@ def _check_args(args) -> None:
         raise fail(f"arena sim: --robots must be in 0..50, got {args.robots}")
     if not 0.05 <= args.power <= 1.0:
         raise fail(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
-    if args.duration < 0:
-        raise fail(f"arena sim: --duration must be >= 0, got {args.duration}")
+    if not (math.isfinite(args.duration) and args.duration >= 0):
+        raise fail(f"arena sim: --duration must be a finite number of seconds >= 0 (0: until Ctrl-C), "
+                   f"got {args.duration}")
     if not 1 <= args.telemetry_hz <= 1000:
         raise fail(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
     for name in ("camera_port", "webcam_port", "robot_base_port"):
@@ -184,8 +191,8 @@ def _check_args(args) -> None:
         v = getattr(args, name)
         if v is not None and not 16 <= v <= 4096:
             raise fail(f"arena sim: --{name} must be 16..4096 px, got {v}")
-    if args.flicker < 0:
-        raise fail(f"arena sim: --flicker must be >= 0 Hz, got {args.flicker}")
+    if not (math.isfinite(args.flicker) and args.flicker >= 0):
+        raise fail(f"arena sim: --flicker must be a finite frequency >= 0 Hz (0: off), got {args.flicker}")
 
 
 def run(args) -> int:

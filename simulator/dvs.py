@@ -43,7 +43,7 @@ from numba import njit
 
 from arena.events import EVENT_DTYPE
 from simulator.camera import ILLUMINATION, CeilingCamera, robot_appearance
-from simulator.world import RobotSpec
+from simulator.world import RobotSpec, check_bool, check_number
 
 #: Default background-activity rate per pixel by lighting level, Hz (more in the dark).
 NOISE_RATE_HZ = {"full": 0.5, "dimmed": 1.0, "dark": 2.0}
@@ -105,26 +105,34 @@ class DvsParams:
     flicker_hz: float = 0.0
     flicker_depth: float = 0.2
 
+    def __post_init__(self) -> None:
+        self.validate()
+
     def validate(self) -> None:
-        """Raise ValueError with a clear message on out-of-range parameters."""
-        checks = [
-            (self.threshold_on > 0 and self.threshold_off > 0, "thresholds must be > 0"),
-            (self.threshold_sigma >= 0, "threshold_sigma must be >= 0"),
-            (self.refractory_us >= 0, "refractory_us must be >= 0"),
-            (self.cutoff_hz > 0 and self.min_cutoff_hz > 0, "cutoff frequencies must be > 0"),
-            (self.noise_rate_hz is None or self.noise_rate_hz >= 0, "noise_rate_hz must be >= 0"),
-            (0.0 <= self.noise_on_fraction <= 1.0, "noise_on_fraction must be in [0, 1]"),
-            (self.leak_rate_hz >= 0, "leak_rate_hz must be >= 0"),
-            (0 <= self.vignetting <= 8, "vignetting (cos exponent) must be in [0, 8]"),
-            (0 <= self.lamp_falloff < 0.8, "lamp_falloff must be in [0, 0.8)"),
-            (self.hot_pixels >= 0 and self.hot_rate_hz >= 0, "hot pixel count/rate must be >= 0"),
-            (1 <= self.step_us <= 1000, "step_us must be in 1..1000 (internal rate >= 1 kHz)"),
-            (isinstance(self.trace_every, int) and 1 <= self.trace_every <= 10, "trace_every must be in 1..10"),
-            (self.flicker_hz >= 0 and 0 <= self.flicker_depth < 1, "flicker must be >= 0 Hz, depth in [0, 1)"),
-        ]
-        for ok, msg in checks:
-            if not ok:
-                raise ValueError(f"DvsParams: {msg}")
+        """Raise ValueError naming the parameter and its allowed values when one has the wrong
+        type (a string, NaN, an infinity, ...) or is out of range. Run on construction (and by
+        the sensor, for fields changed since)."""
+        own = "DvsParams"
+        for name in ("threshold_on", "threshold_off"):
+            check_number(own, name, getattr(self, name), 0, lo_open=True, unit="(ln units)")
+        check_number(own, "threshold_sigma", self.threshold_sigma, 0, unit="(ln units)")
+        check_number(own, "refractory_us", self.refractory_us, 0, integer=True, unit="µs")
+        check_number(own, "cutoff_hz", self.cutoff_hz, 0, lo_open=True, unit="Hz")
+        check_number(own, "min_cutoff_hz", self.min_cutoff_hz, 0, lo_open=True, unit="Hz")
+        check_number(own, "dark_current", self.dark_current, 0, unit="(relative irradiance)")
+        check_number(own, "noise_rate_hz", self.noise_rate_hz, 0, unit="Hz",
+                     none="by lighting: full 0.5, dimmed 1.0, dark 2.0")
+        check_number(own, "noise_on_fraction", self.noise_on_fraction, 0.0, 1.0)
+        check_bool(own, "shot_noise", self.shot_noise)
+        check_number(own, "leak_rate_hz", self.leak_rate_hz, 0, unit="Hz")
+        check_number(own, "vignetting", self.vignetting, 0, 8, unit="(cos exponent)")
+        check_number(own, "lamp_falloff", self.lamp_falloff, 0, 0.8, hi_open=True)
+        check_number(own, "hot_pixels", self.hot_pixels, 0, integer=True)
+        check_number(own, "hot_rate_hz", self.hot_rate_hz, 0, unit="Hz")
+        check_number(own, "step_us", self.step_us, 1, 1000, integer=True, unit="µs (internal rate >= 1 kHz)")
+        check_number(own, "trace_every", self.trace_every, 1, 10, integer=True, unit="steps")
+        check_number(own, "flicker_hz", self.flicker_hz, 0, unit="Hz")
+        check_number(own, "flicker_depth", self.flicker_depth, 0, 1, hi_open=True)
 
 
 @njit(cache=True, inline="always")

@@ -10,6 +10,7 @@ calibration, so a tracker can be run and scored offline.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,7 +19,8 @@ from simulator.autopilot import PATTERNS, Autopilot, make_plans
 from simulator.camera import BODIES, NADIR_OFFSET_M, CeilingCamera
 from simulator.dvs import DvsParams
 from simulator.simulation import TRUTH_DTYPE, Simulation
-from simulator.world import LIGHTING_LEVELS, RobotSpec, World
+from simulator.world import (LIGHTING_LEVELS, RobotSpec, World, _is_int, _is_real, check_bool, check_choice,
+                             check_number)
 
 #: Default shell colours, cycled over robots: (name, sRGB). Black gives dense events,
 #: yellow and white-ish sparse ones (close to the white mats).
@@ -75,27 +77,46 @@ class Scenario:
     nadir_offset_m: tuple[float, float] = NADIR_OFFSET_M
     spin_dps: float | None = 150.0
 
+    def __post_init__(self) -> None:
+        self.validate()
+
     def validate(self) -> None:
-        """Raise ValueError with a clear message when a field is out of range."""
-        if not 0 <= self.n_robots <= 50:
-            raise ValueError(f"n_robots must be in 0..50, got {self.n_robots}")
-        if self.pattern not in PATTERNS:
-            raise ValueError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
-        if not 0.05 <= self.power <= 1.0:
-            raise ValueError(f"power must be a fraction in [0.05, 1], got {self.power}")
-        if self.duration_s <= 0:
-            raise ValueError(f"duration_s must be > 0, got {self.duration_s}")
-        if self.lighting not in LIGHTING_LEVELS:
-            raise ValueError(f"lighting must be one of {LIGHTING_LEVELS}, got {self.lighting!r}")
-        if self.body not in BODIES:
-            raise ValueError(f"body must be one of {BODIES}, got {self.body!r}")
-        if not 0.5 <= self.camera_height_m <= 10.0:
-            raise ValueError(f"camera_height_m must be in 0.5..10 m, got {self.camera_height_m}")
-        off = np.asarray(self.nadir_offset_m, dtype=float)
-        if off.shape != (2,) or not np.all(np.isfinite(off)) or np.any(np.abs(off) > self.arena_m):
-            raise ValueError(f"nadir_offset_m must be (dx, dy) within the arena side, got {self.nadir_offset_m!r}")
-        if self.colours is not None and len(self.colours) < self.n_robots:
-            raise ValueError(f"{len(self.colours)} colours for {self.n_robots} robots")
+        """Raise ValueError naming the field and its allowed values when a field has the wrong
+        type (a string, NaN, an infinity, ...) or is out of range. Run on construction (and by
+        :func:`generate`, for fields changed since)."""
+        own = "Scenario"
+        check_number(own, "n_robots", self.n_robots, 0, 50, integer=True)
+        check_choice(own, "pattern", self.pattern, PATTERNS)
+        check_number(own, "power", self.power, 0.05, 1.0, unit="(a fraction of full power)")
+        check_number(own, "duration_s", self.duration_s, 0, lo_open=True, unit="s")
+        check_choice(own, "lighting", self.lighting, LIGHTING_LEVELS)
+        check_number(own, "seed", self.seed, 0, integer=True)
+        check_number(own, "width", self.width, 16, 4096, integer=True, unit="px")
+        check_number(own, "height", self.height, 16, 4096, integer=True, unit="px")
+        check_bool(own, "markers", self.markers)
+        check_number(own, "stagger_s", self.stagger_s, 0, unit="s")
+        if self.dvs is not None and not isinstance(self.dvs, DvsParams):
+            raise ValueError(f"Scenario.dvs must be a DvsParams or None (the defaults), got {self.dvs!r}")
+        check_number(own, "arena_m", self.arena_m, 0.1, 100.0, unit="m")
+        check_choice(own, "body", self.body, BODIES)
+        check_bool(own, "shadow", self.shadow)
+        check_number(own, "camera_height_m", self.camera_height_m, 0.5, 10.0, unit="m")
+        off = self.nadir_offset_m
+        if (isinstance(off, (str, bytes)) or not hasattr(off, "__len__") or len(off) != 2
+                or not all(_is_real(c) and math.isfinite(float(c)) and abs(float(c)) <= self.arena_m for c in off)):
+            raise ValueError(f"Scenario.nadir_offset_m must be (dx, dy), finite m within the arena side "
+                             f"({self.arena_m:g} m) of the arena centre, got {self.nadir_offset_m!r}")
+        check_number(own, "spin_dps", self.spin_dps, 0, 1000, lo_open=True, unit="deg/s",
+                     none="no tread scrubbing: ideal skid kinematics")
+        if self.colours is not None:
+            if isinstance(self.colours, (str, bytes)) or not hasattr(self.colours, "__len__"):
+                raise ValueError(f"Scenario.colours must be a list of (r, g, b) or None, got {self.colours!r}")
+            if len(self.colours) < self.n_robots:
+                raise ValueError(f"Scenario.colours: {len(self.colours)} colours for {self.n_robots} robots")
+            for i, c in enumerate(self.colours):
+                if (isinstance(c, (str, bytes)) or not hasattr(c, "__len__") or len(c) != 3
+                        or not all(_is_int(v) and 0 <= v <= 255 for v in c)):
+                    raise ValueError(f"Scenario.colours[{i}] must be (r, g, b), integers 0..255, got {c!r}")
 
     def camera(self) -> CeilingCamera:
         """The ceiling event camera of this scenario (geometry, body model, shadow)."""

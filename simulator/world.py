@@ -52,6 +52,60 @@ GRAVITY = 9.81
 #: ("north"), ~-44 µT vertical (northern mid-latitudes).
 EARTH_FIELD_UT = np.array([0.0, 20.0, -44.0])
 LIGHTING_LEVELS = ("full", "dimmed", "dark")
+#: Ids of the ArUco dictionary printed on the shells (DICT_4X4_50).
+MARKER_IDS = 50
+
+
+# -- checks of the simulator's parameter dataclasses (Scenario, DvsParams, RobotSpec) ----------
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _is_real(value) -> bool:
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _bounds(lo, hi, lo_open: bool, hi_open: bool, unit: str) -> str:
+    u = f" {unit}" if unit else ""
+    if lo is not None and hi is not None:
+        return f" in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}{u}"
+    if lo is not None:
+        return f" {'>' if lo_open else '>='} {lo:g}{u}"
+    if hi is not None:
+        return f" {'<' if hi_open else '<='} {hi:g}{u}"
+    return u
+
+
+def check_number(owner: str, name: str, value, lo=None, hi=None, lo_open: bool = False, hi_open: bool = False,
+                 unit: str = "", none: str | None = None, integer: bool = False) -> None:
+    """Raise ValueError ``"<owner>.<name> must be ..., got <value>"`` unless ``value`` is a finite
+    number (an integer if ``integer``; bools and strings are not numbers) within the bounds
+    (``lo_open``/``hi_open``: the bound is excluded). ``none``: None is allowed and means this
+    (e.g. ``"off"``)."""
+    if value is None and none is not None:
+        return
+    ok = _is_int(value) if integer else _is_real(value)
+    if ok:
+        v = float(value)
+        ok = (math.isfinite(v) and (lo is None or (v > lo if lo_open else v >= lo))
+              and (hi is None or (v < hi if hi_open else v <= hi)))
+    if not ok:
+        what = ("an integer" if integer else "a finite number") + _bounds(lo, hi, lo_open, hi_open, unit)
+        if none is not None:
+            what += f", or None ({none})"
+        raise ValueError(f"{owner}.{name} must be {what}, got {value!r}")
+
+
+def check_bool(owner: str, name: str, value) -> None:
+    """Raise ValueError unless ``value`` is True or False (not a string, a number or None)."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{owner}.{name} must be True or False, got {value!r}")
+
+
+def check_choice(owner: str, name: str, value, choices) -> None:
+    """Raise ValueError unless ``value`` is one of the strings ``choices``."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{owner}.{name} must be one of {', '.join(choices)}, got {value!r}")
 
 
 @njit(cache=True, nogil=True)
@@ -144,6 +198,10 @@ class RobotSpec:
     max_speed_mps: float = 0.46
     start: tuple[float, float, float] = (0.9, 0.9, 0.0)
     spin_dps_full: float | None = 150.0
+
+    def __post_init__(self) -> None:
+        check_number("RobotSpec", "marker_id", self.marker_id, 0, MARKER_IDS - 1, integer=True,
+                     none="no marker (ArUco DICT_4X4_50 ids)")
 
 
 def scrub_coefficient(spin_dps_full: float | None, chi0: float, track_width_m: float,

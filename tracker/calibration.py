@@ -31,11 +31,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from arena.config import CAMERA_HEIGHT_RANGE_M, NADIR_MAX_ARENAS, nadir_distance_m
 from arena.homography import CalibrationError, apply_homography, calibration_points, fit_homography
 from arena.homography import read_calibration_json as _read_json
 
 __all__ = ["Calibration", "CalibrationError", "load_calibration", "camera_calibration", "CameraPose",
-           "FALLBACK_CAMERA_HEIGHT_M", "DEFAULT_ROBOT_HEIGHT_M"]
+           "FALLBACK_CAMERA_HEIGHT_M", "DEFAULT_ROBOT_HEIGHT_M", "lens_focal_px", "CAMERA_HEIGHT_RANGE_M",
+           "MAX_PLANE_HEIGHT_M", "MAX_PINHOLE_FOV_DEG", "PIXEL_PITCH_RANGE_UM"]
 
 #: Lens height assumed when neither the command line, the lab file nor the calibration gives
 #: one, m: a ceiling camera under a room's ~2.5 m ceiling. The tracker warns when it uses it.
@@ -46,6 +48,17 @@ FALLBACK_CAMERA_HEIGHT_M = 2.5
 #: (issue 19) a Zumo's cloud shifted outwards by ~1.3 % of its distance from the nadir (less for
 #: bright shells), which under a 2.5 m camera is a point ~3.2 cm above the mats.
 DEFAULT_ROBOT_HEIGHT_M = 0.032
+#: Highest plane a calibration's points may be taken on (``height_m``), m: the mats (0) or a board
+#: or the robots' shell tops on them; 2 m above the mats is already at a ceiling lens's height.
+MAX_PLANE_HEIGHT_M = 2.0
+#: Widest field of view, across the sensor's diagonal, of a lens the pinhole model of
+#: :meth:`Calibration.estimate_pose` (no distortion) stands for, degrees: the widest rectilinear
+#: lenses cover ~120-130 deg; a focal length giving more is a fisheye (not a pinhole) or a wrong
+#: unit (e.g. 0.3 mm for 3 mm: 174 deg on a 640x480 sensor of 15 µm pixels).
+MAX_PINHOLE_FOV_DEG = 150.0
+#: Pixel pitch of real image and event sensors, µm (IMX636: 4.86, Prophesee Gen3 VGA: 15, DAVIS346:
+#: 18.5; phone sensors ~1; none beyond ~40).
+PIXEL_PITCH_RANGE_UM = (0.5, 50.0)
 
 
 @dataclass(frozen=True)
@@ -111,41 +124,71 @@ class Calibration:
         """Build from the calibration JSON dict (see the module docstring)."""
         if not isinstance(d, dict):
             raise CalibrationError(f"{source}: expected a JSON object with image_size and points")
-        try:
-            size = d["image_size"]
-            size = (int(size[0]), int(size[1]))
-        except (KeyError, TypeError, IndexError, ValueError) as exc:
-            raise CalibrationError(
-                f"{source}: expected {{\"image_size\": [w, h], \"points\": [{{\"pixel\": [u, v], "
-                f"\"arena_m\": [x, y]}}, ...]}} ({type(exc).__name__}: {exc})") from None
+        size = d.get("image_size")
+        if not (isinstance(size, (list, tuple)) and len(size) == 2
+                and all(_real(v) and float(v) == int(v) and 0 < v <= 65535 for v in size)):
+            raise CalibrationError(f"{source}: image_size: expected [w, h], the sensor size in px (integers "
+                                   f"1..65535), got {_show(size) if 'image_size' in d else 'nothing (key missing)'}")
+        _check_points(d, source)
         try:
             px, am = calibration_points(d)
-            cal = cls.from_points(px, am, size)
-            cal.height_m = float(d.get("height_m", 0.0) or 0.0)
-            cam_h = d.get("camera_height_m")
-            cal.camera_height_m = None if cam_h is None else float(cam_h)
+            cal = cls.from_points(px, am, (int(size[0]), int(size[1])))
         except (ValueError, TypeError) as exc:
             raise CalibrationError(f"{source}: {exc}") from None
-        if cal.camera_height_m is not None and not (math.isfinite(cal.camera_height_m)
-                                                    and cal.camera_height_m > cal.height_m):
-            raise CalibrationError(f"{source}: camera_height_m must be above height_m")
+        h = d.get("height_m")
+        if h is not None:
+            if not (_real(h) and 0.0 <= h <= MAX_PLANE_HEIGHT_M):
+                raise CalibrationError(f"{source}: height_m: expected the height above the mats of the plane the "
+                                       f"points were taken on, in [0, {MAX_PLANE_HEIGHT_M:g}] m (0: the mats), got "
+                                       f"{_show(h)}")
+            cal.height_m = float(h)
+        cam_h = d.get("camera_height_m")
+        if cam_h is not None:
+            if not _real(cam_h):
+                raise CalibrationError(f"{source}: camera_height_m: expected the lens height above the mats in "
+                                       f"{_height_range()} m, got {_show(cam_h)}")
+            try:
+                cal.with_geometry(camera_height_m=cam_h)
+            except CalibrationError as exc:
+                raise CalibrationError(f"{source}: camera_height_m: {exc}") from None
         nadir = d.get("nadir_m")
         if nadir is not None:
-            cal.nadir = _xy(nadir, f"{source}: nadir_m")
+            cal.nadir = cal._nadir_in_range(_xy(nadir, f"{source}: nadir_m"), f"{source}: nadir_m")
         elif d.get("nadir_px") is not None:  # the nadir as a pixel (e.g. the principal point)
-            cal.nadir = cal.point_to_arena(*_xy(d["nadir_px"], f"{source}: nadir_px"))
+            uv = _xy(d["nadir_px"], f"{source}: nadir_px", "[u, v] in sensor pixels")
+            cal.nadir = cal._nadir_in_range(cal.point_to_arena(*uv), f"{source}: nadir_px {list(uv)}")
         return cal
+
+    def _nadir_in_range(self, xy: tuple[float, float], what: str) -> tuple[float, float]:
+        """``xy`` if it lies within :data:`arena.config.NADIR_MAX_ARENAS` arena sides of the
+        arena (the bounding box of the calibration's arena points), else CalibrationError."""
+        lo, hi = self.arena_m.min(0), self.arena_m.max(0)
+        side = float(max(hi - lo))
+        d = nadir_distance_m((xy[0] - lo[0], xy[1] - lo[1]), tuple(hi - lo))
+        if not (math.isfinite(xy[0]) and math.isfinite(xy[1])) or d > NADIR_MAX_ARENAS * side:
+            raise CalibrationError(
+                f"{what}: the arena point under the lens ({xy[0]:.3f}, {xy[1]:.3f}) m is {d:.2f} m from the arena "
+                f"[{lo[0]:g}, {hi[0]:g}] x [{lo[1]:g}, {hi[1]:g}] m; expected within {NADIR_MAX_ARENAS:g} arena "
+                f"sides ({NADIR_MAX_ARENAS * side:.2f} m) of it (a wrong sign, unit or frame?)")
+        return xy
 
     def with_geometry(self, camera_height_m: float | None = None, nadir_m=None) -> "Calibration":
         """Set the lens height (m) and the nadir ((x, y) m) where given (None keeps the current)."""
         if camera_height_m is not None:
+            lo, hi = CAMERA_HEIGHT_RANGE_M
+            if not _real(camera_height_m):
+                raise CalibrationError(f"camera height must be a number of metres, got {_show(camera_height_m)}")
             h = float(camera_height_m)
-            if not (math.isfinite(h) and h > self.height_m):
+            if not (lo <= h <= hi):
+                raise CalibrationError(f"camera height {h:g} m is outside {_height_range()} m, the physical range "
+                                       "of a ceiling lens's height above the mats (measured, or estimated from the "
+                                       "lens: check the unit and the lens values)")
+            if not h > self.height_m:
                 raise CalibrationError(f"camera height {camera_height_m} m must be above the calibration plane "
                                        f"({self.height_m} m)")
             self.camera_height_m = h
         if nadir_m is not None:
-            self.nadir = _xy(nadir_m, "nadir_m")
+            self.nadir = self._nadir_in_range(_xy(nadir_m, "nadir_m"), "nadir_m")
         return self
 
     def to_dict(self) -> dict:
@@ -260,14 +303,81 @@ class Calibration:
         return float(np.sqrt((d ** 2).sum(1).mean()))
 
 
-def _xy(value, what: str) -> tuple[float, float]:
+def _xy(value, what: str, expected: str = "[x, y] in arena metres") -> tuple[float, float]:
+    if isinstance(value, (str, bytes, dict)) or not all(_real(c) for c in (value if hasattr(value, "__iter__") else [None])):
+        raise CalibrationError(f"{what}: expected {expected}, got {_show(value)}")
     try:
         x, y = (float(c) for c in value)
     except (TypeError, ValueError):
-        raise CalibrationError(f"{what}: expected [x, y] in arena metres, got {value!r}") from None
+        raise CalibrationError(f"{what}: expected {expected}, got {_show(value)}") from None
     if not (math.isfinite(x) and math.isfinite(y)):
-        raise CalibrationError(f"{what}: expected finite [x, y] in arena metres, got {value!r}")
+        raise CalibrationError(f"{what}: expected finite {expected}, got {_show(value)}")
     return x, y
+
+
+def _real(v) -> bool:
+    """A finite real number (not a bool, not a string)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:   # a JSON integer beyond a float
+        return False
+
+
+def _show(v) -> str:
+    """``repr`` of a JSON value, cut to 60 characters."""
+    r = repr(v)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def _height_range() -> str:
+    return f"[{CAMERA_HEIGHT_RANGE_M[0]:g}, {CAMERA_HEIGHT_RANGE_M[1]:g}]"
+
+
+def _check_points(d: dict, source: str) -> None:
+    """The ``points`` list of a calibration dict, every error naming its key (``points[2].pixel``)."""
+    pts = d.get("points")
+    if not isinstance(pts, list):
+        raise CalibrationError(f"{source}: points: expected a list of at least 4 {{\"pixel\": [u, v], \"arena_m\": "
+                               f"[x, y]}}, got {_show(pts) if 'points' in d else 'nothing (key missing)'}")
+    for i, p in enumerate(pts):
+        if not isinstance(p, dict):
+            raise CalibrationError(f"{source}: points[{i}]: expected {{\"pixel\": [u, v], \"arena_m\": [x, y]}}, "
+                                   f"got {_show(p)}")
+        for key, what in (("pixel", "[u, v] in sensor pixels"), ("arena_m", "[x, y] in arena metres")):
+            v = p.get(key)
+            if not (isinstance(v, list) and len(v) == 2 and all(_real(c) for c in v)):
+                got = _show(v) if key in p else "nothing (key missing)"
+                raise CalibrationError(f"{source}: points[{i}].{key}: expected {what} (2 finite numbers), got {got}")
+
+
+def lens_focal_px(focal_length_mm: float, pixel_pitch_um: float, image_size: tuple[int, int]) -> float:
+    """The focal length in pixels (for :meth:`Calibration.estimate_pose`) of a lens of
+    ``focal_length_mm`` on a sensor of ``pixel_pitch_um`` pixels and ``image_size`` (w, h) px.
+
+    Raises :class:`CalibrationError` for values no real camera has: a pitch outside
+    :data:`PIXEL_PITCH_RANGE_UM`, or a focal length so short that the pinhole field of view
+    across the sensor's diagonal exceeds :data:`MAX_PINHOLE_FOV_DEG` (e.g. 0.3 mm on a
+    640x480 sensor of 15 µm pixels: 174 deg), the physical minimum for the pinhole model.
+    """
+    f_mm, pitch = focal_length_mm, pixel_pitch_um
+    if not (_real(f_mm) and f_mm > 0):
+        raise CalibrationError(f"focal length must be a number of mm > 0, got {_show(f_mm)}")
+    lo, hi = PIXEL_PITCH_RANGE_UM
+    if not (_real(pitch) and lo <= pitch <= hi):
+        raise CalibrationError(f"pixel pitch {_show(pitch)} µm is outside [{lo:g}, {hi:g}] µm, the pitch of real "
+                               "sensors (e.g. 15 for a Prophesee Gen3 VGA, 4.86 for an IMX636)")
+    f_px = 1000.0 * float(f_mm) / float(pitch)
+    half_diag = 0.5 * math.hypot(float(image_size[0]), float(image_size[1]))
+    fov = 2.0 * math.degrees(math.atan2(half_diag, f_px))
+    if fov > MAX_PINHOLE_FOV_DEG:
+        f_min = 1e-3 * pitch * half_diag / math.tan(math.radians(0.5 * MAX_PINHOLE_FOV_DEG))
+        raise CalibrationError(
+            f"focal length {f_mm:g} mm with {pitch:g} µm pixels gives a {fov:.0f} deg field of view across the "
+            f"{int(image_size[0])}x{int(image_size[1])} px sensor: no lens the pinhole model stands for (at most "
+            f"{MAX_PINHOLE_FOV_DEG:g} deg, i.e. >= {f_min:.2f} mm here); check the unit (mm) and the lens's data sheet")
+    return f_px
 
 
 def camera_calibration(cam, source: str = "lab config") -> Calibration:

@@ -324,3 +324,21 @@ def test_no_ground_truth_measures_nothing(case):
         assert math.isnan(getattr(s, name)), name
     d = s.to_dict()
     assert (d["mota"], d["idf1"], d["hota"], d["mae_cm"]) == (None, None, None, None)
+
+
+def test_a_negative_host_ns_is_a_format_error_naming_its_line(tmp_path):
+    """An empty host_ns is absent (the row is left out on the host clock); a negative one is a
+    broken value and names its line, not silently taken for absent (issue 20)."""
+    from groundtruth.metrics import CsvFormatError, read_tracks_csv
+
+    p = tmp_path / "t.csv"
+    p.write_text("t_us,track_id,x_m,y_m,host_ns\n"
+                 "0,1,0.5,0.5,1000000\n"
+                 "10000,1,0.5,0.5,\n"
+                 "20000,1,0.5,0.5,-5\n"
+                 "30000,1,0.5,0.5,31000000\n")
+    with pytest.raises(CsvFormatError, match=r"line 4, column host_ns: -5 is negative"):
+        read_tracks_csv(p, clock="host")
+    p.write_text(p.read_text().replace("-5\n", "21000000\n"))
+    tracks = read_tracks_csv(p, clock="host")   # the empty cell alone is left out
+    assert tracks["t_us"].tolist() == [1000, 21000, 31000]
