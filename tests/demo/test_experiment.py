@@ -11,7 +11,7 @@ import pytest
 
 from demo.experiment import PARTS, StudyPlan, run_paper_study, scenario_seed
 
-TINY = StudyPlan(duration_s=1.5, minpts_full=(150, 250), minpts_partial=(30, 60), ta_ms=(100,),
+TINY = StudyPlan(duration_s=1.0, minpts_full=(150, 250), minpts_partial=(30, 60), ta_ms=(100,),
                  table_robots=(1,), table_powers=(100,), lighting_robots=(1,))
 
 
