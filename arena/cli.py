@@ -20,7 +20,8 @@ from importlib.metadata import entry_points
 from typing import TYPE_CHECKING
 
 from arena import __version__
-from arena.session import SessionError, add_zenoh_arguments, open_session
+from arena.clitools import exit_on_session_error, fail, formatter, session_or_exit
+from arena.session import SessionError, add_zenoh_arguments
 
 # The parser is built for every command (`arena track` too): what only `status` and `watch` use
 # (the message codec, msgpack, the key space) is imported when they run.
@@ -38,16 +39,12 @@ Start here:
 Each command has --help with examples."""
 
 
-def _formatter(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
-
-
 # --------------------------------------------------------------------------------------------
 # arena router
 # --------------------------------------------------------------------------------------------
 def _register_router(sub) -> None:
     p = sub.add_parser(
-        "router", help="run a Zenoh router (stand-in for zenohd)", formatter_class=_formatter,
+        "router", help="run a Zenoh router (stand-in for zenohd)", formatter_class=formatter,
         description="Run a Zenoh session in router mode: it routes between clients and peers on\n"
                     "several hosts, liveliness, queries, TLS, user/password and access control.\n"
                     "(zenohd is not pip-installable; its plugins (REST, storage) do not load here.)",
@@ -80,9 +77,14 @@ def _run_router(args) -> int:
     listen = list(args.listen or ([] if args.zenoh_config else ["tcp/127.0.0.1:7447"]))
     settings = ZenohSettings(mode="router", connect=list(args.connect or []), listen=listen,
                              config_file=args.zenoh_config, lease_ms=args.lease_ms)
-    if os.environ.get("ARENA_ZENOH_USER"):  # the credentials it dials other routers with (router.env)
-        settings.user = os.environ["ARENA_ZENOH_USER"]
-        settings.password = os.environ.get("ARENA_ZENOH_PASSWORD", "")
+    # the credentials it dials other routers with (router.env): both or neither
+    user, password = os.environ.get("ARENA_ZENOH_USER"), os.environ.get("ARENA_ZENOH_PASSWORD")
+    if bool(user) != bool(password):
+        raise fail(f"arena router: ARENA_ZENOH_USER and ARENA_ZENOH_PASSWORD go together, but only "
+                   f"{'ARENA_ZENOH_USER' if user else 'ARENA_ZENOH_PASSWORD'} is set: set both (router.env of "
+                   "`arena certs` has both) or neither")
+    if user:
+        settings.user, settings.password = user, password
     if not settings.listen:
         settings.listen = json.loads(settings.to_zenoh_config().get_json("listen/endpoints") or "[]")
         if isinstance(settings.listen, dict):  # per-mode values
@@ -94,16 +96,42 @@ def _run_router(args) -> int:
     name = args.name or re.sub(r"[^A-Za-z0-9_.-]", "-", f"{socket.gethostname()}-{port}")[:64]
     stop = stop_on_signals()
     try:
-        with open_session(settings) as session, Service(session, "router", name):
+        with session_or_exit(settings, "arena router") as session, Service(session, "router", name):
+            # Zenoh opens a router whether or not the routers it dials answer, and keeps retrying
+            # them: claim no connection here; the transport events below say when one is made
             print(f"arena router {session.zid()} listening on {', '.join(settings.listen)}"
-                  + (f", connected to {', '.join(settings.connect)}" if settings.connect else ""), flush=True)
-            wait_until_stopped(stop, args.duration)
+                  + (f"; dialing {', '.join(settings.connect)} (retried until it answers)" if settings.connect
+                     else ""), flush=True)
+            links = session.info.declare_transport_events_listener(_router_links_printer(session), history=True)
+            try:
+                wait_until_stopped(stop, args.duration)
+            finally:
+                links.undeclare()
     except KeyboardInterrupt:
         pass
-    except SessionError as exc:
-        print(f"arena router: {exc}", file=sys.stderr)
-        return exc.exit_code
     return 0
+
+
+def _router_links_printer(session):
+    """A Zenoh transport-events callback printing one line when a router is connected or lost
+    (``arena router: connected to router ZID (ENDPOINT)``): what happened, as Zenoh reports it."""
+    import zenoh
+
+    seen: dict[str, str] = {}
+
+    def on_event(event) -> None:
+        t = event.transport
+        if t.whatami != zenoh.WhatAmI.ROUTER:
+            return
+        zid = str(t.zid)
+        if event.kind == zenoh.SampleKind.PUT:
+            seen[zid] = ", ".join(str(link.dst) for link in session.info.links() if str(link.zid) == zid)
+            print(f"arena router: connected to router {zid}" + (f" ({seen[zid]})" if seen[zid] else ""), flush=True)
+        else:
+            where = seen.pop(zid, "")
+            print(f"arena router: lost router {zid}" + (f" ({where})" if where else "")
+                  + "; Zenoh retries the routers it dials", flush=True)
+    return on_event
 
 
 # --------------------------------------------------------------------------------------------
@@ -111,7 +139,7 @@ def _run_router(args) -> int:
 # --------------------------------------------------------------------------------------------
 def _register_status(sub) -> None:
     p = sub.add_parser(
-        "status", help="which services are alive, and their last status", formatter_class=_formatter,
+        "status", help="which services are alive, and their last status", formatter_class=formatter,
         description="List the services that are alive (liveliness tokens arena/alive/**) with their\n"
                     "last status line (arena/status/**): rates, drops, errors, latency.",
         epilog="Examples:\n"
@@ -148,22 +176,18 @@ def _run_status(args) -> int:
         with lock:
             statuses[(st.role, st.name)] = st.to_dict()
 
-    try:
-        with open_session(args) as session:
-            sub = session.declare_subscriber(ALL_STATUS, on_status)
-            for reply in session.liveliness().get(ALL_ALIVE, timeout=2.0):
-                if reply.ok is not None:
-                    try:
-                        key = parse_key(str(reply.ok.key_expr))
-                    except InvalidKey:   # not a service's token (someone else's key under arena/alive)
-                        continue
-                    if key.kind == "alive":
-                        alive.add((key.parts["role"], key.parts["name"]))
-            time.sleep(max(0.0, args.wait))
-            sub.undeclare()
-    except SessionError as exc:
-        print(f"arena status: {exc}", file=sys.stderr)
-        return exc.exit_code
+    with session_or_exit(args, "arena status") as session:
+        sub = session.declare_subscriber(ALL_STATUS, on_status)
+        for reply in session.liveliness().get(ALL_ALIVE, timeout=2.0):
+            if reply.ok is not None:
+                try:
+                    key = parse_key(str(reply.ok.key_expr))
+                except InvalidKey:   # not a service's token (someone else's key under arena/alive)
+                    continue
+                if key.kind == "alive":
+                    alive.add((key.parts["role"], key.parts["name"]))
+        time.sleep(max(0.0, args.wait))
+        sub.undeclare()
     with lock:
         keys = sorted(alive | set(statuses))
         rows = []
@@ -197,7 +221,7 @@ def _run_status(args) -> int:
 # --------------------------------------------------------------------------------------------
 def _register_watch(sub) -> None:
     p = sub.add_parser(
-        "watch", help="decode and print arena messages on a key expression", formatter_class=_formatter,
+        "watch", help="decode and print arena messages on a key expression", formatter_class=formatter,
         description="Subscribe to KEYEXPR and print every arena message decoded, one per line.\n"
                     "Event windows are summarised (their compressed bytes are not printed).",
         epilog="Examples:\n"
@@ -277,13 +301,11 @@ def _run_watch(args) -> int:
         print("arena watch: --notice-after must be >= 0", file=sys.stderr)
         return 2
     try:
-        settings = resolve_settings(args, load_lab_from_args(args))
+        with exit_on_session_error("arena watch"):
+            settings = resolve_settings(args, load_lab_from_args(args))
     except ConfigError as exc:
         print(f"arena watch: {exc}", file=sys.stderr)
         return 2
-    except SessionError as exc:
-        print(f"arena watch: {exc}", file=sys.stderr)
-        return exc.exit_code
     stop = stop_on_signals()
     n = 0
     lock = threading.Lock()
@@ -314,7 +336,7 @@ def _run_watch(args) -> int:
 
     timer = None
     try:
-        with open_session(settings) as session:
+        with session_or_exit(settings, "arena watch") as session:
             session.declare_subscriber(args.keyexpr, on_sample)
             if args.notice_after > 0 and _secured(settings):
                 timer = threading.Timer(args.notice_after, notice)
@@ -323,9 +345,6 @@ def _run_watch(args) -> int:
             wait_until_stopped(stop, args.duration)
     except KeyboardInterrupt:
         pass
-    except SessionError as exc:
-        print(f"arena watch: {exc}", file=sys.stderr)
-        return exc.exit_code
     except Exception as exc:  # an invalid key expression is reported by zenoh as ZError
         print(f"arena watch: {exc}", file=sys.stderr)
         return 2
@@ -348,7 +367,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     costs ~0.1 s of CPU at each start (2-core VM at load ~8; issue 22). A name no entry
     point has loads them all, so that argparse lists every choice in its error."""
     parser = argparse.ArgumentParser(
-        prog="arena", formatter_class=_formatter,
+        prog="arena", formatter_class=formatter,
         description="Fleet tracking of ground robots with a ceiling event camera, over Zenoh.",
         epilog=EPILOG)
     parser.add_argument("--version", action="version", version=f"arena {__version__}")

@@ -425,8 +425,10 @@ class _AliveSet:
         self.keys: set[str] = set()
         self.tracks_seen: float | None = None
         self._lock = threading.Lock()
-        session.liveliness().declare_subscriber("arena/alive/**", self._on_alive, history=True)
-        session.declare_subscriber("arena/robots/*", self._on_track)
+        from arena.keys import ALL_ALIVE, ALL_ROBOTS
+
+        session.liveliness().declare_subscriber(ALL_ALIVE, self._on_alive, history=True)
+        session.declare_subscriber(ALL_ROBOTS, self._on_track)
 
     def _on_alive(self, sample) -> None:
         import zenoh
@@ -442,7 +444,9 @@ class _AliveSet:
             self.tracks_seen = time.monotonic()
 
     def has(self, role: str, name: str):
-        key = f"arena/alive/{role}/{name}"
+        from arena.keys import alive_key
+
+        key = alive_key(role, name)
 
         def check() -> bool:
             with self._lock:
@@ -560,11 +564,14 @@ def _windows(mcap_path: Path, missions_ns: int | None = None) -> dict | None:
     try:
         from mcap.reader import make_reader
 
+        from arena.keys import parse_key, status_key
+
         last: dict[str, dict] = {}
         before: dict[str, dict] = {}
         with open(mcap_path, "rb") as f:
-            for _, ch, m in make_reader(f).iter_messages(topics=["arena/status/edge/cam0", "arena/status/tracker/cam0"]):
-                role = ch.topic.split("/")[2]
+            for _, ch, m in make_reader(f).iter_messages(topics=[status_key("edge", "cam0"),
+                                                                  status_key("tracker", "cam0")]):
+                role = parse_key(ch.topic).parts["role"]
                 last[role] = json.loads(m.data).get("counters", {})
                 if missions_ns is not None and m.log_time <= missions_ns:
                     before[role] = last[role]

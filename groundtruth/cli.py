@@ -11,9 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-
-def _formatter(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+from arena.clitools import formatter
 
 
 # --------------------------------------------------------------------------------------------
@@ -23,7 +21,7 @@ def register_eval(sub) -> None:
     """Add ``arena eval``: score a tracks CSV against truth (our CSV, a mocap bag or a pose CSV)."""
     p = sub.add_parser(
         "eval", help="score tracks against ground truth (MOTA, IDF1, HOTA, MAE, ...)",
-        formatter_class=_formatter,
+        formatter_class=formatter,
         description="Score a tracker's CSV against truth: per-frame optimal matching with a distance\n"
                     "gate, precision, recall, position MAE (cm), heading MAE (deg, circular), CLEAR MOT\n"
                     "(MOTA, MOTP, ID switches, fragmentations), IDF1 and HOTA. A robot counts once it\n"
@@ -214,7 +212,7 @@ def register_groundtruth(sub) -> None:
 
     p = sub.add_parser(
         "groundtruth", help="ground-truth robot poses from an RGB webcam (ArUco or colour)",
-        formatter_class=_formatter,
+        formatter_class=formatter,
         description="Read a webcam (device index, video file or URL such as the simulator's MJPEG\n"
                     "stream), detect the robots with ArUco markers (unique ids and heading) or shell\n"
                     "colours (HSV + contours; the square shell's heading, known modulo 90 deg, resolved\n"
@@ -395,8 +393,8 @@ def _run_loop(args, lab, source, detector) -> int:
 
     import cv2
 
+    from arena.clitools import session_or_exit
     from arena.service import Service, stop_on_signals
-    from arena.session import open_session
     from groundtruth.service import GroundTruthRunner, heading_counts, heading_note
 
     # One OpenCV thread: on 640x480 frames at 24 fps its worker pool mostly busy-waits between
@@ -406,7 +404,7 @@ def _run_loop(args, lab, source, detector) -> int:
     with contextlib.ExitStack() as stack:
         session = svc = None
         if not args.no_zenoh:
-            session = stack.enter_context(open_session(args, lab, wait_s=None))
+            session = stack.enter_context(session_or_exit(args, "arena groundtruth", lab=lab, wait_s=None))
             svc = stack.enter_context(Service(session, "groundtruth", args.name))
         try:
             runner = GroundTruthRunner(session, source, detector, svc, args.csv, args.annotate)

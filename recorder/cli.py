@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import os
 import socket
 import sys
 import time
 
+from arena.clitools import USAGE, formatter, session_or_exit
 from arena.keys import EVERYTHING, InvalidKey, validate_name
-from arena.session import SessionError, add_zenoh_arguments, open_session
+from arena.session import add_zenoh_arguments
 
 # Registered at every `arena` command's start: the MCAP library (~20 ms) and the service runtime
 # are imported by the commands that use them. A machine without mcap still lists record/replay as
@@ -19,15 +19,11 @@ if importlib.util.find_spec("mcap") is None:
     raise ImportError("No module named 'mcap'", name="mcap")
 
 
-def _formatter(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
-
-
 def register_record(sub) -> None:
     """Add ``arena record`` to the ``arena`` subparsers."""
     p = sub.add_parser(
         "record", help="record arena messages into an MCAP file (Foxglove, ROS 2 tooling)",
-        formatter_class=_formatter,
+        formatter_class=formatter,
         description="Subscribe to arena messages and write them into an MCAP file: one channel per key,\n"
                     "tracks/telemetry/ground truth/status as JSON with a JSON schema (Foxglove shows\n"
                     "them), event windows as their msgpack bytes (lossless). Also Foxglove's own schemas\n"
@@ -64,7 +60,7 @@ def register_record(sub) -> None:
 def register_replay(sub) -> None:
     """Add ``arena replay`` to the ``arena`` subparsers."""
     p = sub.add_parser(
-        "replay", help="publish a recorded run again on Zenoh", formatter_class=_formatter,
+        "replay", help="publish a recorded run again on Zenoh", formatter_class=formatter,
         description="Publish the messages of a run recorded by `arena record` (an .mcap file, or a run\n"
                     "folder of `arena demo` holding one) on their original keys with byte-identical\n"
                     "payloads, in order, at the recorded pace or faster. Viewers, scorers and trackers\n"
@@ -133,14 +129,12 @@ def run_record(args) -> int:
     meta = {"host": socket.gethostname(), "keys": ",".join(keys), "started_ns": str(time.time_ns()),
             "command": " ".join(sys.argv)}
     try:
-        with open_session(args, lab=lab, wait_s=None) as session:
+        # waits for its router: only wrong settings (exit 2) end it here
+        with session_or_exit(args, "arena record", lab=lab, wait_s=None) as session:
             res = record(session, out, keys, stop, duration_s=args.duration, name=name, queue_size=args.queue,
                          metadata=meta, foxglove=foxglove,
                          on_ready=lambda: print(f"recording {', '.join(keys)} to {out} (Ctrl-C to stop)",
                                                 flush=True))
-    except SessionError as exc:
-        print(f"arena record: {exc}", file=sys.stderr)
-        return 2
     except OSError as exc:
         print(f"arena record: cannot write {out}: {exc}", file=sys.stderr)
         return 2
@@ -172,7 +166,9 @@ def run_replay(args) -> int:
         return 2
     stop = stop_on_signals()
     try:
-        with open_session(args) as session, Service(session, "recorder", name) as svc:
+        # exit 2 as before even when no router answers (the policy's code for that would be 1)
+        with session_or_exit(args, "arena replay", code=USAGE) as session, \
+                Service(session, "recorder", name) as svc:
             if wait_stop(stop, max(0.0, args.start_delay)):
                 return 0
             pace = "as fast as possible" if args.speed == 0 else f"at {args.speed:g}x"
@@ -181,9 +177,6 @@ def run_replay(args) -> int:
                          on_message=lambda m: svc.count("messages"))
     except KeyboardInterrupt:
         return 0
-    except SessionError as exc:
-        print(f"arena replay: {exc}", file=sys.stderr)
-        return 2
     except RunFileError as exc:
         print(f"arena replay: {exc}", file=sys.stderr)
         return 2
@@ -257,7 +250,7 @@ def register_foxglove(sub) -> None:
     """Add ``arena foxglove`` to the ``arena`` subparsers."""
     p = sub.add_parser(
         "foxglove", help="serve the arena live to Foxglove (WebSocket): robots in 3D over the event image",
-        formatter_class=_formatter,
+        formatter_class=formatter,
         description="Subscribe to the tracks and event windows and serve them over Foxglove's WebSocket\n"
                     "protocol (the official foxglove-sdk), as the same foxglove/... topics `arena record`\n"
                     "writes: robot poses, transforms, boxes with heading arrows and labels, the arena\n"
@@ -309,13 +302,10 @@ def run_foxglove(args) -> int:
         print(f"arena foxglove: {exc}", file=sys.stderr)
         return 2
     try:
-        with live, open_session(args, lab=lab, wait_s=None) as session:
+        with live, session_or_exit(args, "arena foxglove", lab=lab, wait_s=None) as session:
             res = serve(session, converter, live, stop, name=name,
                         on_ready=lambda url: print(f"foxglove server on {url} (Ctrl-C to stop)", flush=True))
     except KeyboardInterrupt:
         return 0
-    except SessionError as exc:
-        print(f"arena foxglove: {exc}", file=sys.stderr)
-        return exc.exit_code
     print(f"served {res.messages} Foxglove messages from {res.samples} samples", flush=True)
     return 0

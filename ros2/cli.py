@@ -6,22 +6,18 @@ runs, and without it the command prints one line naming what to install and exit
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 
+from arena.clitools import formatter, session_or_exit
 from arena.keys import InvalidKey, validate_name
-from arena.session import SessionError, add_zenoh_arguments, open_session
-
-
-def _formatter(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+from arena.session import add_zenoh_arguments
 
 
 def register_export(sub) -> None:
     """Add ``arena export`` to the ``arena`` subparsers."""
     p = sub.add_parser(
-        "export", help="export a run folder for other tools (a ROS 2 rosbag2)", formatter_class=_formatter,
+        "export", help="export a run folder for other tools (a ROS 2 rosbag2)", formatter_class=formatter,
         description="Write a run folder of `arena demo` as a rosbag2 with MCAP storage that `ros2 bag play`\n"
                     "and Foxglove read, serialized with the rosbags package (no ROS install needed):\n"
                     "  /arena/robots/<name>/pose       geometry_msgs/msg/PoseStamped   tracks.csv\n"
@@ -47,7 +43,7 @@ def register_export(sub) -> None:
 def register_ros2(sub) -> None:
     """Add ``arena ros2`` to the ``arena`` subparsers."""
     p = sub.add_parser(
-        "ros2", help="publish the tracks for ROS 2 (through zenoh-bridge-ros2dds)", formatter_class=_formatter,
+        "ros2", help="publish the tracks for ROS 2 (through zenoh-bridge-ros2dds)", formatter_class=formatter,
         description="Subscribe to the tracks (arena/robots/*) and publish each as a CDR\n"
                     "geometry_msgs/msg/PoseStamped on the Zenoh key that zenoh-bridge-ros2dds maps to the ROS 2\n"
                     "topic /arena/robots/<name>/pose (key arena/robots/<name>/pose), and as tf2_msgs/msg/TFMessage\n"
@@ -138,16 +134,12 @@ def run_ros2(args) -> int:
         return 2
     stop = stop_on_signals()
     example = bridge_key("/arena/robots/NAME/pose", ns)
-    try:
-        with open_session(args, wait_s=None) as session:
-            res = run_bridge(session, serializer, stop, name=name, namespace=ns, offset_ns=args.offset_ns,
-                             groundtruth=args.groundtruth, tf=not args.no_tf, duration_s=args.duration,
-                             on_ready=lambda: print(f"bridging arena/robots/* to ROS 2 CDR on {example}"
-                                                    f"{'' if args.no_tf else ' and ' + bridge_key('/tf', ns)}"
-                                                    " (Ctrl-C to stop)", flush=True))
-    except SessionError as exc:
-        print(f"arena ros2: {exc}", file=sys.stderr)
-        return exc.exit_code
+    with session_or_exit(args, "arena ros2", wait_s=None) as session:
+        res = run_bridge(session, serializer, stop, name=name, namespace=ns, offset_ns=args.offset_ns,
+                         groundtruth=args.groundtruth, tf=not args.no_tf, duration_s=args.duration,
+                         on_ready=lambda: print(f"bridging arena/robots/* to ROS 2 CDR on {example}"
+                                                f"{'' if args.no_tf else ' and ' + bridge_key('/tf', ns)}"
+                                                " (Ctrl-C to stop)", flush=True))
     print(f"bridged {res.tracks} tracks and {res.groundtruth} ground-truth poses as {res.published} ROS 2 "
           f"samples in {res.seconds:.1f} s; rejected {res.bad}", flush=True)
     return 0

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 import time
 from pathlib import Path
 
-from arena.clitools import fail
+from arena.clitools import fail, formatter
 
 TRACK_EXAMPLES = """\
 Examples:
@@ -48,10 +49,6 @@ x along the image's bottom edge and y up the image. A preview PNG (grid every 0.
 written beside the JSON (--preview to choose its path)."""
 
 
-def _fmt(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=34)
-
-
 def _positive_ms(text: str) -> float:
     try:
         v = float(text)
@@ -66,7 +63,7 @@ def register_track(sub) -> None:
     """Add ``arena track``."""
     from arena.session import add_zenoh_arguments
 
-    p = sub.add_parser("track", help="detect and track the robots (offline file or live)", formatter_class=_fmt,
+    p = sub.add_parser("track", help="detect and track the robots (offline file or live)", formatter_class=formatter,
                        description="Detect robots in event windows (DBSCAN), estimate their heading, keep their\n"
                                    "IDs and map them to arena metres. Offline with --input, live with --camera.",
                        epilog=TRACK_EXAMPLES)
@@ -156,8 +153,6 @@ def run_track(args) -> int:
         lab_h = lab.robot_height_cm() if lab is not None else None
         args.robot_height_cm = lab_h if lab_h is not None else 100.0 * DEFAULT_ROBOT_HEIGHT_M
     if args.camera:
-        from tracker.service import run_live
-
         return run_live(args)
     return run_offline(args, lab)
 
@@ -180,6 +175,78 @@ def pipeline_options(args) -> dict:
     return dict(tracker=args.tracker, detector=args.detector, accumulation_us=int(round(args.accumulation_ms * 1000)),
                 chassis_m=args.chassis_cm / 100.0, backend=args.backend, robot_height_m=args.robot_height_cm / 100.0,
                 camera_height_m=args.camera_height_m)
+
+
+def run_live(args) -> int:
+    """``arena track --camera NAME``: build the pipeline, state file and CSV log from the flags and
+    the lab file, then :func:`tracker.service.run` until interrupted (or ``--duration`` s)."""
+    import logging
+
+    from arena.clitools import session_or_exit
+    from arena.config import ConfigError
+    from arena.keys import events_key
+    from arena.service import stop_on_signals
+    from arena.session import load_lab_from_args
+    from tracker.calibration import CalibrationError, camera_calibration
+    from tracker.pipeline import Pipeline, TrackCsvWriter, warm_up
+    from tracker.service import default_state_path, run
+
+    log = logging.getLogger("tracker")
+    try:
+        lab = load_lab_from_args(args)
+    except ConfigError as exc:
+        raise fail(f"arena track: {exc}") from None
+    try:
+        events_key(args.camera)
+    except ValueError as exc:
+        raise fail(f"arena track: {exc}") from None
+    if args.calibration:
+        cal = _load_calibration(args.calibration, args.camera)
+    elif lab is not None:
+        try:
+            cam = lab.camera(args.camera)
+            if cam.calibration is None and cam.calibration_file is None:
+                raise fail(f"arena track: camera {args.camera!r} of {lab.path} has no calibration; "
+                           "give --calibration FILE")
+            # its points or file, with the camera table's camera_height_m / nadir_m
+            cal = camera_calibration(cam, lab.path or "lab config")
+        except (ConfigError, CalibrationError) as exc:
+            raise fail(f"arena track: {exc}") from None
+    else:
+        raise fail("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
+    fleet_size = args.fleet_size if args.fleet_size is not None else ((len(lab.robots) or None) if lab is not None else None)
+    _check_geometry(args)
+
+    def make_pipeline() -> Pipeline:
+        return Pipeline(cal, fleet_size=fleet_size, **pipeline_options(args))
+
+    try:
+        pipe = make_pipeline()
+    except CalibrationError as exc:
+        raise fail(f"arena track: {exc}") from None
+    if pipe.parallax_warning:
+        log.warning("%s", pipe.parallax_warning)
+    # compile the kernels before declaring liveliness: "alive" then means "tracks at full rate"
+    t0 = time.monotonic()
+    warm_up(make_pipeline)
+    if time.monotonic() - t0 > 2.0:
+        log.info("tracker kernels compiled in %.1f s (cached for the next start)", time.monotonic() - t0)
+    name = args.name or f"tracker-{args.camera}"
+    state_path = None
+    if getattr(args, "use_state", True) and args.tracker == "fleet":
+        state_path = Path(args.state) if args.state else default_state_path(name)
+    stop = stop_on_signals()
+    csv_file = open(args.tracks_out, "w", newline="") if args.tracks_out else None
+    try:
+        with session_or_exit(args, "arena track", lab=lab, wait_s=None) as session:
+            run(session, make_pipeline, args.camera, stop, name=name, pipeline=pipe, tracker=args.tracker,
+                detector=args.detector, queue=args.queue, names_from_groundtruth=args.names_from_groundtruth,
+                state_path=state_path, state_max_age_s=args.state_max_age,
+                writer=TrackCsvWriter(csv_file) if csv_file else None, duration_s=args.duration)
+    finally:
+        if csv_file is not None:
+            csv_file.close()
+    return 0
 
 
 def run_offline(args, lab=None) -> int:
@@ -276,7 +343,7 @@ def _size(text: str) -> tuple[int, int]:
 def register_calibrate(sub) -> None:
     """Add ``arena calibrate``."""
     p = sub.add_parser("calibrate", help="make the camera calibration (pixel -> arena metres)",
-                       formatter_class=_fmt,
+                       formatter_class=formatter,
                        description="Fit the homography between sensor pixels and arena metres and write the\n"
                                    "calibration JSON {\"image_size\": [w, h], \"points\": [...]} and a preview PNG.",
                        epilog=CALIBRATE_EXAMPLES)
@@ -292,7 +359,8 @@ def register_calibrate(sub) -> None:
                         "tracker's parallax correction; wins over the estimate from the lens)")
     p.add_argument("--nadir", type=_xy_arg, default=None, metavar="X,Y",
                    help="arena point under the lens, m (e.g. a plumb line; stored as nadir_m; default: "
-                        "the estimate from the lens, else none: the tracker uses the image centre's point)")
+                        "the estimate from the lens, else none: the tracker uses the image centre's point); "
+                        "outside the mat it may be negative: --nadir -0.2,0.9")
     p.add_argument("--focal-length-mm", type=float, default=None, metavar="MM",
                    help="lens focal length, mm: with --pixel-pitch-um, estimate the camera's height and nadir "
                         "from the homography (pinhole model, principal point at the image centre)")
@@ -301,6 +369,14 @@ def register_calibrate(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="JSON", help="calibration file to write")
     p.add_argument("--preview", metavar="PNG", help="preview image (default: OUTPUT with .png)")
     p.set_defaults(func=run_calibrate)
+    # argparse reads an argument starting with '-' as an option unless it is a plain negative
+    # number, so `--nadir -0.2,0.9` failed ("expected one argument"). No option of this parser
+    # looks like a number: a negative X,Y pair is a value too (`--nadir=-0.2,0.9` always was)
+    p._negative_number_matcher = _NEGATIVE_VALUE
+
+
+#: what arena calibrate takes as a value although it starts with '-': -5, -0.5, -.5, -0.2,0.9, -1,-2
+_NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)(,-?(\d+\.?\d*|\.\d+))?$")
 
 
 def _xy_arg(text: str) -> tuple[float, float]:

@@ -49,21 +49,22 @@ import os
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from arena.clitools import fail
 from arena.codec import CodecError, decode
-from arena.keys import events_key, robot_key, validate_name
+from arena.keys import ALL_GROUNDTRUTH, ALL_ROBOTS, events_key, robot_key, validate_name
 from arena.messages import EventWindow, GroundTruthPose, MessageError, Track
+from arena.service import Service
 from tracker.objects import TrackedRobot
-from tracker.pipeline import Pipeline, TrackCsvWriter, warm_up
+from tracker.pipeline import Pipeline, TrackCsvWriter
 
 log = logging.getLogger("tracker")
 
-__all__ = ["LiveTracker", "Inbox", "run_live", "default_state_path", "save_state", "load_state", "check_state",
+__all__ = ["LiveTracker", "Inbox", "run", "default_state_path", "save_state", "load_state", "check_state",
            "MAX_STATE_BYTES", "MAX_STATE_TRACKS"]
 
 #: a state file larger than this is not read (a fleet of 1000 tracks takes ~250 kB)
@@ -228,7 +229,7 @@ class LiveTracker:
     """Wraps a :class:`Pipeline` for one camera: decode, order checks, track messages.
 
     No Zenoh: ``handle(payload, now_ns)`` returns the Track messages to publish (the wiring is in
-    :func:`run_live`); it logs, counts into ``svc``'s status and reads the host clock for timings.
+    :func:`run`); it logs, counts into ``svc``'s status and reads the host clock for timings.
     """
 
     #: a window this much older than the last one is a restarted stream (e.g. a replay
@@ -465,153 +466,107 @@ class LiveTracker:
         return out
 
 
-def run_live(args) -> int:
-    """``arena track --camera NAME``: run until interrupted (or ``--duration`` s)."""
-    from arena.config import ConfigError
-    from arena.service import Service, stop_on_signals
-    from arena.session import SessionError, load_lab_from_args, open_session
-    from tracker.calibration import CalibrationError, camera_calibration
-    from tracker.cli import _check_geometry, _load_calibration, pipeline_options
+def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: str, stop: threading.Event, *,
+        name: str, pipeline: Pipeline | None = None, tracker: str = "fleet", detector: str = "default",
+        queue: int = 100, names_from_groundtruth: bool = True, state_path: Path | None = None,
+        state_max_age_s: float = 600.0, writer: TrackCsvWriter | None = None,
+        duration_s: float | None = None) -> None:
+    """Track ``arena/events/<camera>`` on ``session`` until ``stop`` is set (or ``duration_s``
+    passes): publish ``arena/robots/<id>``, answer ``get("arena/robots/*")``, report as service
+    ``tracker/<name>``.
 
-    try:
-        lab = load_lab_from_args(args)
-    except ConfigError as exc:
-        raise fail(f"arena track: {exc}") from None
-    try:
-        events_key(args.camera)
-    except ValueError as exc:
-        raise fail(f"arena track: {exc}") from None
-    if args.calibration:
-        cal = _load_calibration(args.calibration, args.camera)
-    elif lab is not None:
-        try:
-            cam = lab.camera(args.camera)
-            if cam.calibration is None and cam.calibration_file is None:
-                raise fail(f"arena track: camera {args.camera!r} of {lab.path} has no calibration; "
-                                 "give --calibration FILE")
-            # its points or file, with the camera table's camera_height_m / nadir_m
-            cal = camera_calibration(cam, lab.path or "lab config")
-        except (ConfigError, CalibrationError) as exc:
-            raise fail(f"arena track: {exc}") from None
-    else:
-        raise fail("arena track: --calibration FILE (or --lab with the camera's calibration) is required")
-    fleet_size = args.fleet_size if args.fleet_size is not None else ((len(lab.robots) or None) if lab is not None else None)
-    _check_geometry(args)
+    Built objects only (``tracker.cli`` turns flags and the lab file into them):
+    ``make_pipeline()`` builds a fresh :class:`~tracker.pipeline.Pipeline` (after a restarted
+    stream); ``pipeline`` is the first one (default: ``make_pipeline()``); ``tracker`` and
+    ``detector`` are the names of the method, shown by ``arena status``; ``state_path``: the fleet
+    state file read at start and written every second (None: none); ``writer``: a CSV log of
+    every track (stale ones too)."""
+    pipe = make_pipeline() if pipeline is None else pipeline
+    deadline = None if duration_s is None else time.monotonic() + duration_s
+    with Service(session, "tracker", name) as svc:
+        live = LiveTracker(pipe, camera, svc, make_pipeline)
+        # the method in use, shown by `arena status` (it may come from the lab's [services.tracker])
+        svc.gauge("tracker", tracker)
+        svc.gauge("detector", detector)
+        if state_path is not None:
+            _restore_state(live, state_path, state_max_age_s, svc)
+        next_save = time.monotonic() + 1.0
+        publishers: dict[str, zenoh.Publisher] = {}
 
-    def make_pipeline() -> Pipeline:
-        return Pipeline(cal, fleet_size=fleet_size, **pipeline_options(args))
+        def on_query(query: zenoh.Query) -> None:
+            with live.lock:
+                fleet = list(live.fleet.items())
+            for key, msg in fleet:
+                if zenoh.KeyExpr(key).intersects(query.key_expr):
+                    query.reply(key, msg.encode())
 
-    try:
-        pipe = make_pipeline()
-    except CalibrationError as exc:
-        raise fail(f"arena track: {exc}") from None
-    if pipe.parallax_warning:
-        log.warning("%s", pipe.parallax_warning)
-    # compile the kernels before declaring liveliness: "alive" then means "tracks at full rate"
-    t0 = time.monotonic()
-    warm_up(make_pipeline)
-    if time.monotonic() - t0 > 2.0:
-        log.info("tracker kernels compiled in %.1f s (cached for the next start)", time.monotonic() - t0)
-    name = args.name or f"tracker-{args.camera}"
-    state_path = None
-    if getattr(args, "use_state", True) and args.tracker == "fleet":
-        state_path = Path(args.state) if args.state else default_state_path(name)
-    stop = stop_on_signals()
-    csv_file = open(args.tracks_out, "w", newline="") if args.tracks_out else None
-    writer = TrackCsvWriter(csv_file) if csv_file else None
-    deadline = None if args.duration is None else time.monotonic() + args.duration
-    try:
-        with open_session(args, lab=lab, wait_s=None) as session, Service(session, "tracker", name) as svc:
-            live = LiveTracker(pipe, args.camera, svc, make_pipeline)
-            # the method in use, shown by `arena status` (it may come from the lab's [services.tracker])
-            svc.gauge("tracker", args.tracker)
-            svc.gauge("detector", args.detector)
-            if state_path is not None:
-                _restore_state(live, state_path, args.state_max_age, svc)
-            next_save = time.monotonic() + 1.0
-            publishers: dict[str, zenoh.Publisher] = {}
-
-            def on_query(query: zenoh.Query) -> None:
-                with live.lock:
-                    fleet = list(live.fleet.items())
-                for key, msg in fleet:
-                    if zenoh.KeyExpr(key).intersects(query.key_expr):
-                        query.reply(key, msg.encode())
-
-            def on_groundtruth(sample) -> None:
-                try:
-                    gt = GroundTruthPose.decode(sample.payload.to_bytes())
-                except MessageError:
-                    svc.count("groundtruth_bad")
-                    return
-                live.observe_groundtruth(gt.robot, gt.x, gt.y)
-
-            queryable = session.declare_queryable("arena/robots/*", on_query)
-            gt_sub = (session.declare_subscriber("arena/groundtruth/*", on_groundtruth)
-                      if args.names_from_groundtruth else None)
-            inbox = Inbox(max(1, args.queue))
-            sub = session.declare_subscriber(events_key(args.camera), lambda sample: inbox.put(sample.payload.to_bytes()))
-            log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(args.camera),
-                     args.tracker, args.detector)
+        def on_groundtruth(sample) -> None:
             try:
-                newest: tuple[bytes | None, int | None] = (None, None)   # (payload, its window end), cached
-                last_window = None   # monotonic s when the worker last took a window
-                while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-                    if state_path is not None and time.monotonic() >= next_save:
-                        next_save = time.monotonic() + 1.0
-                        _save_state(live, state_path, svc)
-                    payload, dropped = inbox.get(timeout=0.2)
-                    if dropped:
-                        svc.count("windows_dropped_in_queue", dropped)
-                    if payload is None:
-                        continue
-                    now = time.monotonic()
-                    resumed = last_window is not None and now - last_window > STALL_S
-                    last_window = now
-                    try:
-                        queued = inbox.newest()
-                        if queued is not None and queued is not newest[0]:
-                            newest = (queued, live.window_end(queued))
-                        out = live.handle(payload, time.time_ns(), dropped,
-                                          newest_end_us=newest[1] if queued is not None else None, resumed=resumed)
-                        for key, msg, tr in out:
-                            pub = publishers.get(key)
-                            if pub is None:
-                                pub = publishers[key] = session.declare_publisher(key)
-                            msg.tracker_publish_ns = time.time_ns()
-                            pub.put(msg.encode())
-                        if out:
-                            svc.count("tracks_out", len(out))
-                            svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
-                            edge = out[0][1].edge_publish_ns
-                            if edge:
-                                svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
-                            if writer is not None:
-                                writer.write((tr for _, _, tr in out), live.sensor_to_host_ns)
-                        if live.unpublished and writer is not None:   # stale: logged, not published
-                            writer.write(live.unpublished, live.sensor_to_host_ns)
-                    except Exception as exc:   # last resort: one window must not stop the tracker
-                        svc.count("windows_failed")
-                        svc.error(f"window not processed ({type(exc).__name__}: {str(exc)[:300]}); "
-                                  "counted in windows_failed, tracking goes on")
-                        log.debug("window not processed", exc_info=True)
-            except KeyboardInterrupt:
-                pass
-            finally:
-                if state_path is not None:
+                gt = GroundTruthPose.decode(sample.payload.to_bytes())
+            except MessageError:
+                svc.count("groundtruth_bad")
+                return
+            live.observe_groundtruth(gt.robot, gt.x, gt.y)
+
+        queryable = session.declare_queryable(ALL_ROBOTS, on_query)
+        gt_sub = (session.declare_subscriber(ALL_GROUNDTRUTH, on_groundtruth)
+                  if names_from_groundtruth else None)
+        inbox = Inbox(max(1, queue))
+        sub = session.declare_subscriber(events_key(camera), lambda sample: inbox.put(sample.payload.to_bytes()))
+        log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(camera), tracker, detector)
+        try:
+            newest: tuple[bytes | None, int | None] = (None, None)   # (payload, its window end), cached
+            last_window = None   # monotonic s when the worker last took a window
+            while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+                if state_path is not None and time.monotonic() >= next_save:
+                    next_save = time.monotonic() + 1.0
                     _save_state(live, state_path, svc)
-                sub.undeclare()
-                queryable.undeclare()
-                if gt_sub is not None:
-                    gt_sub.undeclare()
-                for pub in publishers.values():
-                    pub.undeclare()
-    except SessionError as exc:
-        raise fail(f"arena track: {exc}", exc.exit_code) from None
-    finally:
-        if csv_file is not None:
-            csv_file.close()
-    return 0
+                payload, dropped = inbox.get(timeout=0.2)
+                if dropped:
+                    svc.count("windows_dropped_in_queue", dropped)
+                if payload is None:
+                    continue
+                now = time.monotonic()
+                resumed = last_window is not None and now - last_window > STALL_S
+                last_window = now
+                try:
+                    queued = inbox.newest()
+                    if queued is not None and queued is not newest[0]:
+                        newest = (queued, live.window_end(queued))
+                    out = live.handle(payload, time.time_ns(), dropped,
+                                      newest_end_us=newest[1] if queued is not None else None, resumed=resumed)
+                    for key, msg, tr in out:
+                        pub = publishers.get(key)
+                        if pub is None:
+                            pub = publishers[key] = session.declare_publisher(key)
+                        msg.tracker_publish_ns = time.time_ns()
+                        pub.put(msg.encode())
+                    if out:
+                        svc.count("tracks_out", len(out))
+                        svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
+                        edge = out[0][1].edge_publish_ns
+                        if edge:
+                            svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
+                        if writer is not None:
+                            writer.write((tr for _, _, tr in out), live.sensor_to_host_ns)
+                    if live.unpublished and writer is not None:   # stale: logged, not published
+                        writer.write(live.unpublished, live.sensor_to_host_ns)
+                except Exception as exc:   # last resort: one window must not stop the tracker
+                    svc.count("windows_failed")
+                    svc.error(f"window not processed ({type(exc).__name__}: {str(exc)[:300]}); "
+                              "counted in windows_failed, tracking goes on")
+                    log.debug("window not processed", exc_info=True)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if state_path is not None:
+                _save_state(live, state_path, svc)
+            sub.undeclare()
+            queryable.undeclare()
+            if gt_sub is not None:
+                gt_sub.undeclare()
+            for pub in publishers.values():
+                pub.undeclare()
 
 
 class Inbox:

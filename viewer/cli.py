@@ -2,27 +2,23 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
 import threading
 from pathlib import Path
 
+from arena.clitools import formatter, session_or_exit
 from arena.config import ConfigError
 from arena.keys import InvalidKey, validate_name
-from arena.session import SessionError, add_zenoh_arguments, load_lab_from_args, open_session
-
-
-def _formatter(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+from arena.session import add_zenoh_arguments, load_lab_from_args
 
 
 def register(sub) -> None:
     """Add ``arena view`` to the ``arena`` subparsers."""
     p = sub.add_parser(
         "view", help="live web view: events, tracks, ground truth, telemetry, services",
-        formatter_class=_formatter,
+        formatter_class=formatter,
         description="Serve one web page showing the arena live from Zenoh: the accumulated event image\n"
                     "(ON black, OFF blue, no event white), each track's box, id, heading arrow and trail\n"
                     "drawn on it and on an arena plot in metres, the ground truth, telemetry sparklines\n"
@@ -130,7 +126,9 @@ def run(args) -> int:
     stop = stop_on_signals()
     thread = threading.Thread(target=server.serve_forever, name="http", daemon=True)
     try:
-        with open_session(args, lab=lab, wait_s=None) as session, Service(session, "viewer", name) as svc:
+        # waits for its router: only wrong settings (exit 2) end it here
+        with session_or_exit(args, "arena view", lab=lab, wait_s=None) as session, \
+                Service(session, "viewer", name) as svc:
             subs = subscribe(session, state, camera)
             svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count()),
                                    s.gauge("bad", state.counts["bad"]), s.gauge("bad_keys", state.counts["bad_keys"]),
@@ -151,9 +149,6 @@ def run(args) -> int:
                     s.undeclare()
     except KeyboardInterrupt:
         pass
-    except SessionError as exc:
-        print(f"arena view: {exc}", file=sys.stderr)
-        return 2
     finally:
         server.server_close()
     return 0

@@ -45,3 +45,25 @@ def test_parse_round_trip(key, kind, parts):
 def test_parse_rejects_non_keys(bad):
     with pytest.raises(InvalidKey):
         keys.parse_key(bad)
+
+
+#: modules that split strings at "/" that are not Zenoh keys: a source URL, ROS 2 names and types
+NOT_KEYS = {"arena/keys.py", "camera_edge/cli.py", "groundtruth/mocap.py", "ros2/cli.py", "ros2/convert.py"}
+
+
+def test_no_module_splits_a_zenoh_key_by_hand():
+    """Keys are parsed by arena.keys.parse_key (one place knows the key space), not split by hand."""
+    import ast
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    found = []
+    for pkg in ("arena", "camera_edge", "tracker", "groundtruth", "recorder", "viewer", "ros2", "demo"):
+        for path in sorted((repo / pkg).rglob("*.py")):
+            rel = path.relative_to(repo).as_posix()
+            for n in ast.walk(ast.parse(path.read_text())):
+                if (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in ("split", "rsplit")
+                        and n.args and isinstance(n.args[0], ast.Constant) and n.args[0].value == "/"
+                        and rel not in NOT_KEYS):
+                    found.append(f"{rel}:{n.lineno}")
+    assert found == []

@@ -70,3 +70,36 @@ def test_a_run_that_went_wrong_says_so_first_everywhere(tmp_path, capsys):
     assert report[2] == f"**NOT OK**: {len(expected)} problem(s):" and report[4:4 + len(expected)] == [
         f"- {p}" for p in expected]
     assert "| MOTA | n/a |" in report and "| HOTA | n/a |" in report
+
+
+def test_event_windows_lost_are_read_from_the_status_in_the_recording(tmp_path):
+    """_windows reads the edge's and the tracker's status (found by their keys, arena.keys) in
+    arena.mcap: the last counters, and with the missions' start the growth since then. Another
+    camera's and a non-status channel are ignored."""
+    from mcap.writer import Writer
+
+    from demo.cli import _windows
+
+    statuses = [  # (log time ns, topic, counters)
+        (10, "arena/status/edge/cam0", {"windows": 100, "windows_dropped": 1}),
+        (20, "arena/status/tracker/cam0", {"windows_in": 95, "windows_missed": 2, "windows_dropped_in_queue": 0}),
+        (30, "arena/status/edge/cam1", {"windows": 7, "windows_dropped": 7}),
+        (40, "arena/telemetry/zumo1", {"windows": 9}),
+        (50, "arena/status/edge/cam0", {"windows": 300, "windows_dropped": 4}),
+        (60, "arena/status/tracker/cam0", {"windows_in": 290, "windows_missed": 3, "windows_dropped_in_queue": 1}),
+    ]
+    path = tmp_path / "arena.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        schema = w.register_schema("arena.Status", "jsonschema", b"{}")
+        channels = {}
+        for t, topic, counters in statuses:
+            if topic not in channels:
+                channels[topic] = w.register_channel(topic, "json", schema)
+            w.add_message(channels[topic], log_time=t, publish_time=t, data=json.dumps({"counters": counters}).encode())
+        w.finish()
+    assert _windows(path) == {"edge_published": 300, "edge_dropped": 4, "tracker_in": 290, "tracker_missed": 3,
+                              "tracker_queue_dropped": 1}
+    assert _windows(path, missions_ns=25)["during_missions"] == {"edge_dropped": 3, "tracker_missed": 1,
+                                                                 "tracker_queue_dropped": 1}
