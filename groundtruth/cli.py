@@ -163,7 +163,7 @@ def run_eval(args: argparse.Namespace) -> int:
     if args.track_clock == "host":
         n_all = len(read_tracks_csv(args.tracks))
         lines.append(f"tracks on the host clock (host_ns): {len(tracks)} of {n_all} rows"
-                     + (f"; {n_all - len(tracks)} without a host_ns (empty or negative) left out" if n_all > len(tracks) else ""))
+                     + (f"; {n_all - len(tracks)} without a host_ns (empty) left out" if n_all > len(tracks) else ""))
     if len(truth) == 0:
         return fail(f"truth file {args.truth} has a header but no rows")
     exclude = () if args.include_tentative else ("tentative",)

@@ -392,7 +392,7 @@ def _xy_arg(text: str) -> tuple[float, float]:
 def _camera_geometry(args, cal) -> list[str]:
     """Put the lens height and nadir (given, or estimated from the lens) into ``cal``; returns
     the lines to print."""
-    from tracker.calibration import FALLBACK_CAMERA_HEIGHT_M, CalibrationError
+    from tracker.calibration import FALLBACK_CAMERA_HEIGHT_M, CalibrationError, lens_focal_px
 
     notes = []
     lens = (args.focal_length_mm, args.pixel_pitch_um)
@@ -404,7 +404,10 @@ def _camera_geometry(args, cal) -> list[str]:
     if lens[0] is not None:
         if not all(math.isfinite(v) and v > 0 for v in lens):
             raise fail(f"arena calibrate: --focal-length-mm and --pixel-pitch-um must be > 0, got {lens}")
-        pose = cal.estimate_pose(1000.0 * lens[0] / lens[1])
+        try:
+            pose = cal.estimate_pose(lens_focal_px(lens[0], lens[1], cal.image_size))
+        except CalibrationError as exc:
+            raise fail(f"arena calibrate: {exc}") from None
         notes.append(f"estimated from the lens: camera {pose.camera_height_m:.3f} m above the mats, nadir "
                      f"({pose.nadir_m[0]:.3f}, {pose.nadir_m[1]:.3f}) m, tilt {pose.tilt_deg:.1f} deg"
                      + (f" (warning: the homography fits this focal length poorly, column ratio "

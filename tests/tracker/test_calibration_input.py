@@ -84,5 +84,11 @@ def test_arena_calibrate_refuses_the_estimate_of_a_0_3_mm_lens(tmp_path):
                         "--focal-length-mm", "0.3", "--pixel-pitch-um", "15", "-o", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 2, r.stderr
-    assert "Traceback" not in r.stderr and "outside [0.3, 20] m" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and "field of view" in r.stderr, r.stderr
+    assert not out.exists()
+    # 1.2 mm: a 161 deg lens, which gave a plausible-looking 0.32 m camera: refused by the lens check
+    r = subprocess.run([sys.executable, "-m", "arena", "calibrate", "--size", "640x480", "--points", *pts,
+                        "--focal-length-mm", "1.2", "--pixel-pitch-um", "15", "-o", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "field of view" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not out.exists()
