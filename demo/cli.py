@@ -798,14 +798,24 @@ def register_experiment(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="base random seed (default 1)")
     p.add_argument("--only", metavar="PARTS", default=None,
                    help="comma-separated subset of: minpts,ta,table,lighting (default all)")
+    p.add_argument("--seconds", type=float, default=None, metavar="S",
+                   help="simulated seconds per scenario, 0.5-120 (default 12, or 3 with --quick)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_experiment)
 
 
 def run_experiment(args: argparse.Namespace) -> int:
     """Run ``arena experiment``; returns the exit code."""
-    from demo.experiment import PARTS, ExperimentError, run_paper_study
+    from dataclasses import replace
 
+    from demo.experiment import PARTS, ExperimentError, StudyPlan, run_paper_study
+
+    if args.seconds is not None and not 0.5 <= args.seconds <= 120:
+        print(f"arena experiment: --seconds must be 0.5-120 s per scenario, got {args.seconds:g}", file=sys.stderr)
+        return 2
+    plan = None
+    if args.seconds is not None:
+        plan = replace(StudyPlan.quick() if args.quick else StudyPlan.full(), duration_s=args.seconds)
     parts = PARTS if args.only is None else tuple(s.strip() for s in args.only.split(",") if s.strip())
     bad = [s for s in parts if s not in PARTS]
     if bad or not parts:
@@ -814,7 +824,7 @@ def run_experiment(args: argparse.Namespace) -> int:
         return 2
     try:
         study = run_paper_study(Path(args.out), quick=args.quick, seed=args.seed, parts=parts,
-                                progress=not args.no_progress)
+                                progress=not args.no_progress, plan=plan)
     except ExperimentError as exc:
         print(f"arena experiment: {exc}", file=sys.stderr)
         return 2

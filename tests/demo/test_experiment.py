@@ -67,14 +67,17 @@ def arena(*args, timeout=240):
 @pytest.mark.slow
 def test_cli_quick_study_writes_its_report(tmp_path):
     r = arena("experiment", "paper", "--out", tmp_path, "--quick", "--only", "table", "--seed", "2",
-              "--no-progress")
+              "--seconds", "1.2", "--no-progress")
     assert r.returncode == 0, r.stderr
     assert "report written to" in r.stdout
     md = (tmp_path / "report.md").read_text()
     assert "### 100 % power" in md and "| 2 | square | fleet |" in md
+    assert "1.2 s per scenario" in md and json.loads((tmp_path / "study.json").read_text())["plan"]["duration_s"] == 1.2
 
 
 def test_cli_rejects_bad_options(tmp_path):
+    r = arena("experiment", "paper", "--out", tmp_path, "--seconds", "0.1")
+    assert r.returncode == 2 and "--seconds must be 0.5-120" in r.stderr
     r = arena("experiment", "paper", "--out", tmp_path, "--only", "tables")
     assert r.returncode == 2 and "unknown part(s) tables" in r.stderr and "Traceback" not in r.stderr
     blocker = tmp_path / "file"
