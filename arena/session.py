@@ -188,8 +188,14 @@ def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | No
         s.listen = _split(env["ARENA_ZENOH_LISTEN"]) or []
     if env.get("ARENA_ZENOH_CONFIG"):
         s.config_file = env["ARENA_ZENOH_CONFIG"]
-    if env.get("ARENA_ZENOH_USER"):  # per-role credentials (systemd EnvironmentFile, `arena certs`)
-        s.user, s.password = env["ARENA_ZENOH_USER"], env.get("ARENA_ZENOH_PASSWORD", "")
+    user, password = env.get("ARENA_ZENOH_USER"), env.get("ARENA_ZENOH_PASSWORD")
+    if bool(user) != bool(password):   # one without the other: a half-written env file
+        have, missing = ("ARENA_ZENOH_USER", "ARENA_ZENOH_PASSWORD") if user else ("ARENA_ZENOH_PASSWORD",
+                                                                                "ARENA_ZENOH_USER")
+        raise SessionError(f"{have} is set but {missing} is not: the two go together (user/password "
+                           f"authentication; `arena certs` writes both per role); set both or neither")
+    if user:  # per-role credentials (systemd EnvironmentFile, `arena certs`)
+        s.user, s.password = user, password
     if args is not None:
         if getattr(args, "mode", None):
             s.mode = args.mode

@@ -43,3 +43,20 @@ def test_only_one_of_user_and_password_is_one_line_naming_both():
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and "ARENA_ZENOH_USER and ARENA_ZENOH_PASSWORD go together" in lines[0]
         assert f"only {only} is set" in lines[0] and r.stdout == ""
+
+
+def test_every_client_refuses_only_one_of_user_and_password():
+    """Not only the router: a client with a half-written env file (a user without its password, or
+    the reverse) gets one line naming both variables, exit 2, instead of an empty password or
+    silently no authentication."""
+    import subprocess
+    import sys
+
+    for only in ("ARENA_ZENOH_USER", "ARENA_ZENOH_PASSWORD"):
+        env = {**os.environ, "ARENA_ZENOH_USER": "", "ARENA_ZENOH_PASSWORD": "", only: "x",
+               "ARENA_ZENOH_CONNECT": f"tcp/127.0.0.1:{free_port()}"}
+        r = subprocess.run([sys.executable, "-m", "arena", "status", "--wait", "0.5"], capture_output=True,
+                           text=True, timeout=60, env=env)
+        assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+        assert "ARENA_ZENOH_USER" in r.stderr and "ARENA_ZENOH_PASSWORD" in r.stderr and "go together" in r.stderr
+        assert f"{only} is set but" in r.stderr and "Traceback" not in r.stderr, r.stderr
