@@ -359,7 +359,7 @@ SERVICE_OPTIONS: dict[str, dict[str, ServiceOption]] = {
         "state_max_age_s": _opt("float", 600.0, "live: a state file older than this is not restored, s",
                                 lo=0, dest="state_max_age"),
     },
-    "bridge": {  # arena bridge run (defaults as robot_bridge.service.BridgeOptions)
+    "bridge": {  # arena bridge run (defaults as robot_bridge.core.BridgeOptions)
         "telemetry_dir": _opt("str", "bridge_logs", "mission logs directory", dest="log_dir"),
         "geofence_margin_m": _opt("float", 0.03, "stop a robot closer than this to the arena edge, m", lo=0,
                                   dest="geofence_margin"),

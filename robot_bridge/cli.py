@@ -13,6 +13,7 @@ import math
 import sys
 import time
 
+from arena.clitools import formatter
 from arena.session import SessionError, add_zenoh_arguments, open_session, resolve_settings
 
 log = logging.getLogger("robot_bridge")
@@ -36,14 +37,10 @@ bridge answered, a robot that could not be reached with --require-all), 2 usage 
 """
 
 
-def _formatter(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=34)
-
-
 def register(subparsers) -> None:
     """Add ``bridge`` and its subcommands to the ``arena`` parser."""
     p = subparsers.add_parser(
-        "bridge", help="drive the robots: missions, telemetry, logs, safety", formatter_class=_formatter,
+        "bridge", help="drive the robots: missions, telemetry, logs, safety", formatter_class=formatter,
         description="The robot bridge: serial links (Bluetooth SPP, USB, simulator socket://) to the\n"
                     "robots, missions (circle, square, ...) in paper or closed-loop mode, telemetry on\n"
                     "arena/telemetry/<robot>, CSV logs, and commands on arena/cmd/<robot>/<verb>.",
@@ -51,7 +48,7 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="bridge_command", metavar="SUBCOMMAND")
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
 
-    r = sub.add_parser("run", help="run the bridge service", formatter_class=_formatter, epilog=EXAMPLES,
+    r = sub.add_parser("run", help="run the bridge service", formatter_class=formatter, epilog=EXAMPLES,
                        description="Connect to every robot and serve missions and commands until Ctrl-C.\n"
                                    "Motors are stopped on exit, Ctrl-C, SIGTERM, link or router loss (client\n"
                                    "mode, the default). A robot whose link cannot be opened is an error in\n"
@@ -78,7 +75,7 @@ def register(subparsers) -> None:
     add_zenoh_arguments(r)
     r.set_defaults(func=run_service)
 
-    m = sub.add_parser("mission", help="start a mission on a robot (or all)", formatter_class=_formatter,
+    m = sub.add_parser("mission", help="start a mission on a robot (or all)", formatter_class=formatter,
                        epilog=EXAMPLES,
                        description="Patterns: circle (--radius, --direction, --laps), square (--side, --direction,\n"
                                    "--laps), figure8 (--radius, --laps), back_and_forth (--length, --laps),\n"
@@ -109,11 +106,11 @@ def register(subparsers) -> None:
 
     for verb, text in (("stop", "stop the mission and the motors"), ("estop", "emergency stop, latched until clear"),
                        ("clear", "clear a latched e-stop")):
-        c = sub.add_parser(verb, help=text, formatter_class=_formatter, epilog=EXAMPLES, description=text + ".")
+        c = sub.add_parser(verb, help=text, formatter_class=formatter, epilog=EXAMPLES, description=text + ".")
         c.add_argument("robot", help="robot name, or 'all'")
         _client_args(c)
         c.set_defaults(func=run_simple, verb=verb)
-    c = sub.add_parser("led", help="set a robot's LED colour", formatter_class=_formatter, epilog=EXAMPLES)
+    c = sub.add_parser("led", help="set a robot's LED colour", formatter_class=formatter, epilog=EXAMPLES)
     c.add_argument("robot", help="robot name, or 'all'")
     c.add_argument("rgb", nargs=3, type=int, metavar="RGB", help="red, green and blue, 0-255 each")
     _client_args(c)
@@ -136,8 +133,9 @@ REQUIRE_WAIT_S = 10.0
 
 
 def _robots_from(args, lab) -> list:
+    from .core import RobotSetup
     from .odometry import WheelGeometry
-    from .service import RobotSetup, parse_robot_flag
+    from .service import parse_robot_flag
 
     robots = []
     flags = {}
@@ -163,7 +161,8 @@ def run_service(args) -> int:
     from arena.service import Service, stop_on_signals, wait_until_stopped
     from arena.session import load_lab_from_args
 
-    from .service import Bridge, BridgeOptions
+    from .core import BridgeOptions
+    from .service import Bridge
 
     try:
         lab = load_lab_from_args(args)
@@ -359,7 +358,7 @@ def run_simple(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m robot_bridge``: the same as ``arena bridge``."""
-    parser = argparse.ArgumentParser(prog="python -m robot_bridge", formatter_class=_formatter)
+    parser = argparse.ArgumentParser(prog="python -m robot_bridge", formatter_class=formatter)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     register(sub)
     args = parser.parse_args(["bridge", *(argv if argv is not None else sys.argv[1:])])

@@ -39,7 +39,7 @@ from typing import Callable
 
 import serial
 
-from . import protocol as P
+from arena import robot_protocol as P
 
 log = logging.getLogger("robot_bridge.link")
 

@@ -2,7 +2,7 @@
 
 Stands in for the Zumo 32U4 reference firmware (``robot_bridge/firmware/``): it speaks
 the arena robot wire protocol (``docs/robot-protocol.md``, implemented by
-``robot_bridge.protocol``, which the firmware's C code is cross-tested against) on a
+``arena.robot_protocol``, which the firmware's C code is cross-tested against) on a
 TCP socket, so the bridge opens it as ``socket://127.0.0.1:PORT`` with pyserial exactly
 as it opens ``/dev/rfcomm0``.
 
@@ -34,7 +34,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from robot_bridge import protocol as P
+from arena import robot_protocol as P
 
 log = logging.getLogger("simulator.robot_emulator")
 

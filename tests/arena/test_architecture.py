@@ -21,7 +21,7 @@ def _lint(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
 def test_import_contracts_are_kept():
     r = _lint()
     assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-2000:]
-    assert "4 kept, 0 broken" in r.stdout
+    assert "5 kept, 0 broken" in r.stdout
 
 
 def test_a_service_importing_another_breaks_a_contract(tmp_path):
@@ -30,9 +30,12 @@ def test_a_service_importing_another_breaks_a_contract(tmp_path):
     shutil.copytree(ROOT, copy, ignore=shutil.ignore_patterns(".git", "__pycache__", "runs", "*.egg-info",
                                                              "bench", "tests", "docs", "deploy"))
     (copy / "viewer" / "sneaky.py").write_text("from tracker import fleet  # a service reaching into another\n")
+    with open(copy / "robot_bridge" / "service.py", "a") as f:   # a service reaching into its own CLI
+        f.write("\nfrom robot_bridge import cli as _cli  # noqa\n")
     # `python -c` puts the working directory first on sys.path: the copy is what gets analysed
     r = subprocess.run([sys.executable, "-c", "import sys; sys.argv = ['lint-imports', '--no-cache']; "
                         "from importlinter.cli import lint_imports_command; lint_imports_command()"],
                        cwd=copy, capture_output=True, text=True, timeout=300)
     assert r.returncode != 0
     assert "viewer is not allowed to import tracker" in r.stdout and "viewer.sneaky -> tracker.fleet" in r.stdout
+    assert "robot_bridge.service is not allowed to import robot_bridge.cli" in r.stdout, r.stdout[-3000:]

@@ -6,9 +6,9 @@ keep on any input: raise only its declared error type, and return only valid val
 * ``codec-*``: :func:`arena.codec.decode` raises only ``CodecError``, returns ``count`` events;
 * ``file-*``: :func:`arena.formats.read_events` raises only ``FormatError`` and returns events
   inside a 1..65535 px sensor with polarity 0/1;
-* ``robot-protocol``: the serial link's :class:`robot_bridge.protocol.StreamDecoder` never raises
+* ``robot-protocol``: the serial link's :class:`arena.robot_protocol.StreamDecoder` never raises
   (bad frames are counted), returns the same frames however the bytes are chunked, only frames
-  whose packet :func:`~robot_bridge.protocol.decode_packet` accepts (which raises only
+  whose packet :func:`~arena.robot_protocol.decode_packet` accepts (which raises only
   ``ProtocolError``), with every field inside its physical range; the bridge's frame handler
   then publishes telemetry that a receiver decodes;
 * ``mission``: a ``MissionCommand`` query payload through the bridge's own path (decode, the
@@ -276,7 +276,7 @@ def _json_generate(keys=()):
 # --- the robot serial protocol ---
 
 def _protocol_messages():
-    from robot_bridge import protocol as P
+    from arena import robot_protocol as P
 
     return [
         P.Hello(), P.HelloReply(3, 50, 1807, 300, "zumo1"), P.SetMotors(-400, 400), P.SetLed(255, 0, 7), P.Stop(),
@@ -290,7 +290,7 @@ def _protocol_seed() -> bytes:
     """Unframed packets without their CRC, each behind its length byte: the check computes the
     CRC and the COBS framing of each, so mutations reach the body checks and the clamping (a
     mutated framed stream almost never passes the CRC); the raw bytes are fed as a stream too."""
-    from robot_bridge import protocol as P
+    from arena import robot_protocol as P
 
     out = bytearray()
     for k, msg in enumerate(_protocol_messages()):
@@ -326,7 +326,7 @@ def _scratch(name: str) -> Path:
 
 
 def _feed(stream: bytes, step: int):
-    from robot_bridge import protocol as P
+    from arena import robot_protocol as P
 
     dec = P.StreamDecoder()
     frames = []
@@ -336,7 +336,7 @@ def _feed(stream: bytes, step: int):
 
 
 def _check_frames(frames) -> None:
-    from robot_bridge import protocol as P
+    from arena import robot_protocol as P
 
     for fr in frames:
         assert type(fr.msg) in P.MESSAGE_TYPES.values(), fr
@@ -349,11 +349,11 @@ def _check_frames(frames) -> None:
 
 
 def _bridge_handle():
-    """A fresh :class:`robot_bridge.service.RobotHandle` (per input, so that a finding replays)
+    """A fresh :class:`robot_bridge.core.RobotHandle` (per input, so that a finding replays)
     that is never started (no serial port, no threads); its ``publish`` decodes what it is given,
     as a receiver of ``arena/telemetry`` does."""
     from arena import messages as m
-    from robot_bridge.service import BridgeOptions, RobotHandle, RobotSetup
+    from robot_bridge.core import BridgeOptions, RobotHandle, RobotSetup
 
     def publish(robot, msg):
         got = m.decode(msg.encode())        # MessageError here: the bridge publishes garbage
@@ -363,7 +363,7 @@ def _bridge_handle():
 
 
 def _check_protocol(data: bytes) -> None:
-    from robot_bridge import protocol as P
+    from arena import robot_protocol as P
 
     # 1. the bytes as they come off the serial line: never an exception, chunking does not matter
     ref = None
@@ -472,7 +472,7 @@ def _mission_handle():
     whose link counts as up and whose mission log writes nothing: :meth:`RobotHandle.start_mission`
     then runs all of its pure work on the fuzzed command."""
     global _MISSION_HANDLE_CLS
-    import robot_bridge.service as svc
+    import robot_bridge.core as svc
 
     if _MISSION_HANDLE_CLS is None:
         class NullLog:
@@ -494,7 +494,7 @@ def _mission_handle():
 def _check_mission(data: bytes) -> None:
     from arena.messages import MessageError, MissionCommand
     from robot_bridge.missions import check_mission
-    from robot_bridge.service import CommandError
+    from robot_bridge.core import CommandError
 
     try:
         cmd = MissionCommand.decode(data)

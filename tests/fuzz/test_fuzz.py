@@ -68,7 +68,7 @@ def test_unwrapped_robot_counters_never_go_negative():
     than half the range ahead (a link silent for > 32768 frames while the robot ran on) unwrapped
     to a negative ``seq`` / ``robot_time_us``, and every telemetry the bridge published after it
     was refused by its receivers (``MessageError``)."""
-    from robot_bridge.protocol import Unwrapper
+    from arena.robot_protocol import Unwrapper
 
     u = Unwrapper(16)
     assert [u(v) for v in (10, 40_000, 65_535, 3, 40_000)] == [10, 40_000, 65_535, 65_539, 40_000]

@@ -1,5 +1,5 @@
 """The firmware's C framing (robot_bridge/firmware/arena_robot/arena_proto.c), compiled on
-the host with gcc and loaded with ctypes, agrees byte for byte with robot_bridge.protocol."""
+the host with gcc and loaded with ctypes, agrees byte for byte with arena.robot_protocol."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_bridge import protocol as P
+from arena import robot_protocol as P
 
 FW = Path(__file__).resolve().parents[2] / "robot_bridge" / "firmware" / "arena_robot"
 

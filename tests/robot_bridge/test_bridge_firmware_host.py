@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from robot_bridge import protocol as P
+from arena import robot_protocol as P
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "robot_bridge" / "firmware" / "arena_robot"

@@ -9,13 +9,13 @@ import time
 import pytest
 from bridge_testkit import running_world, wait_for
 
+from arena import robot_protocol as P
 from arena.messages import MissionCommand
-from robot_bridge import protocol as P
 from robot_bridge.control import WheelPID
 from robot_bridge.link import LinkDown, RobotLink
 from robot_bridge.logs import read_log
 from robot_bridge.odometry import WheelGeometry
-from robot_bridge.service import BridgeOptions, RobotHandle, RobotSetup
+from robot_bridge.core import BridgeOptions, RobotHandle, RobotSetup
 from simulator.robot_emulator import LinkFaults, RobotEmulatorServer
 
 

@@ -41,7 +41,7 @@ KILLED = textwrap.dedent("""
     sys.path.insert(0, sys.argv[2])
     from bridge_testkit import running_world
     from arena.messages import MissionCommand
-    from robot_bridge.service import BridgeOptions, RobotHandle, RobotSetup
+    from robot_bridge.core import BridgeOptions, RobotHandle, RobotSetup
     from simulator.robot_emulator import RobotEmulatorServer
     with running_world() as world, RobotEmulatorServer(world, 0) as emu:
         h = RobotHandle(RobotSetup("r1", emu.url), BridgeOptions(log_dir=sys.argv[1]))

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robot_bridge import protocol as P
+from arena import robot_protocol as P
 
 i16 = st.integers(-32768, 32767)
 power = st.integers(-400, 400)

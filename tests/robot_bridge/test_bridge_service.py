@@ -16,8 +16,9 @@ from bridge_testkit import running_world, wait_for
 from arena.messages import Command, CommandReply, MissionCommand, Telemetry, Track, decode
 from arena.session import ZenohSettings, open_session
 from robot_bridge.logs import read_log
+from robot_bridge.core import BridgeOptions, RobotSetup
 from robot_bridge.odometry import WheelGeometry
-from robot_bridge.service import Bridge, BridgeOptions, RobotSetup
+from robot_bridge.service import Bridge
 from simulator.robot_emulator import RobotEmulatorServer
 
 

@@ -8,7 +8,7 @@ import time
 import pytest
 import serial
 
-from robot_bridge import protocol as P
+from arena import robot_protocol as P
 from simulator.robot_emulator import LinkFaults, RobotEmulatorServer
 from simulator.world import RobotSpec, World
 

@@ -2,7 +2,7 @@
  *
  * Plain C99, no allocation, no Arduino dependencies, so the same file is compiled
  * into the Zumo 32U4 sketch and into a host shared library that the Python tests
- * (tests/robot_bridge/test_firmware_c.py) check against robot_bridge/protocol.py.
+ * (tests/robot_bridge/test_bridge_firmware_c.py) check against arena/robot_protocol.py.
  *
  * Packet = header (8 B, little-endian: version u8, type u8, seq u16, time_us u32)
  *        + body + CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF) of header+body, LE.

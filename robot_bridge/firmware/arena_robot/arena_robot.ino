@@ -12,7 +12,7 @@
 //  * PING -> PONG with the same token; HELLO -> HELLO_REPLY; SET_LED; STOP.
 //
 // Framing and CRC live in arena_proto.c/.h, which the host tests compile with gcc and
-// compare byte for byte with robot_bridge/protocol.py.
+// compare byte for byte with arena/robot_protocol.py.
 //
 // Build: Arduino IDE or arduino-cli with the Pololu A-Star 32U4 board package and the
 // Zumo32U4 library:  arduino-cli compile -b pololu-a-star:avr:a-star32U4 arena_robot

@@ -1,9 +1,11 @@
 """Robot wire protocol: COBS-framed, CRC-16-checked binary packets (pure, no I/O).
 
-The byte layout is specified in ``docs/robot-protocol.md``; the firmware's C version
-of the same framing lives in ``robot_bridge/firmware/arena_proto.c`` and is
-cross-tested against this module on the host. The simulator's robot emulator
-imports this module so that it speaks exactly what the firmware speaks.
+A contract shared by the robot bridge (``robot_bridge.link``, ``robot_bridge.core``), the
+simulator's robot emulator (``simulator.robot_emulator``, which imports this module so that it
+speaks exactly what the firmware speaks) and the firmware cross-tests, so it lives in ``arena/``.
+The byte layout is specified in ``docs/robot-protocol.md``; the firmware's C version of the same
+framing lives in ``robot_bridge/firmware/arena_robot/arena_proto.c`` and is cross-tested against
+this module on the host.
 
 A packet on the wire is ``COBS(header + body + crc16) + b"\\x00"``:
 
