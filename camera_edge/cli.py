@@ -8,7 +8,7 @@ import logging
 import os
 import sys
 
-from arena.clitools import fail
+from arena.clitools import fail, formatter
 from arena.codec_names import CODECS, DEFAULT_CODEC
 from arena.config import SERVICE_OPTIONS
 
@@ -36,10 +36,6 @@ Formats by extension: read .raw (EVT 2.0/2.1/3.0) .dat .aedat4 .csv .npy .npz;
 write .raw (EVT 3.0 or 2.0) .dat .aedat4 .csv .npz .npy."""
 
 
-def _fmt(prog: str) -> argparse.HelpFormatter:
-    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
-
-
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -52,7 +48,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def register_convert(sub) -> None:
     """Add ``arena convert``."""
-    p = sub.add_parser("convert", help="convert event recordings between formats", formatter_class=_fmt,
+    p = sub.add_parser("convert", help="convert event recordings between formats", formatter_class=formatter,
                        description="Convert an event recording to another format, chosen by extension,\n"
                                    "keeping the sensor size and absolute timestamps.", epilog=CONVERT_EXAMPLES)
     p.add_argument("input", help="input file (.raw .dat .aedat4 .csv .npy .npz)")
@@ -113,7 +109,7 @@ def register_edge(sub) -> None:
     from arena.session import add_zenoh_arguments
 
     p = sub.add_parser("edge", help="read an event camera, filter, slice, compress and publish",
-                       formatter_class=_fmt, epilog=EDGE_EXAMPLES,
+                       formatter_class=formatter, epilog=EDGE_EXAMPLES,
                        description="Read events from a camera, a TCP stream or a file, filter them, cut\n"
                                    "fixed slices of sensor time and publish them compressed on\n"
                                    "arena/events/<camera> (congestion control DROP).")

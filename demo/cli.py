@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
+from arena.clitools import formatter
 from demo.supervisor import ProcSpec, Supervisor, python_cmd
 
 log = logging.getLogger("arena.demo")
@@ -36,7 +37,7 @@ OBSERVER_NICE = 10
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo", help="the whole lab in one command, on the built-in simulated arena",
-        formatter_class=argparse.RawDescriptionHelpFormatter, description=__doc__,
+        formatter_class=formatter, description=__doc__,
         epilog="Examples:\n"
                "  arena demo                                   # 4 robots, circles and squares, 30 s\n"
                "  arena demo --robots 2 --mission circle --power 0.5 --duration 20\n"
@@ -780,7 +781,7 @@ def register_experiment(sub) -> None:
     """Add ``arena experiment``: rerun the paper's study on the simulator."""
     p = sub.add_parser(
         "experiment", help="rerun the paper's experiments on the simulator, with a report",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=formatter,
         description="Rerun the paper's study end to end on the simulated arena: the minPts sweep\n"
                     "(n_avg-clusters and A_ratio, full and partial clusters, 50 % and 100 % power), the\n"
                     "accumulation-time sweep (MAE vs t_a), 1-4 robots x circle/square x 50/100 % power\n"

@@ -13,8 +13,8 @@ import math
 import sys
 import time
 
-from arena.clitools import formatter
-from arena.session import SessionError, add_zenoh_arguments, open_session, resolve_settings
+from arena.clitools import exit_on_session_error, formatter
+from arena.session import add_zenoh_arguments, open_session, resolve_settings
 
 log = logging.getLogger("robot_bridge")
 
@@ -168,8 +168,9 @@ def run_service(args) -> int:
         lab = load_lab_from_args(args)
         robots = _robots_from(args, lab)
         # the same settings the session is opened with (flags > ARENA_ZENOH_* > lab > defaults)
-        settings = resolve_settings(args, lab)
-    except (ConfigError, UsageError, SessionError) as exc:
+        with exit_on_session_error("arena bridge run", code=2):
+            settings = resolve_settings(args, lab)
+    except (ConfigError, UsageError) as exc:
         print(f"arena bridge run: {exc}", file=sys.stderr)
         return 2
     if not robots:
@@ -203,7 +204,7 @@ def run_service(args) -> int:
     watch = settings.mode == "client"
     stop = stop_on_signals()
     try:
-        with open_session(settings, wait_s=None) as session:
+        with exit_on_session_error("arena bridge run", code=2), open_session(settings, wait_s=None) as session:
             svc = Service(session, "bridge", name)
             try:
                 bridge = Bridge(session, robots, o, service=svc, watch_router=watch)
@@ -232,9 +233,6 @@ def run_service(args) -> int:
                 bridge.close()
     except KeyboardInterrupt:
         pass
-    except SessionError as exc:
-        print(f"arena bridge run: {exc}", file=sys.stderr)
-        return 2
     return 0
 
 
@@ -267,14 +265,15 @@ def _send(args, verb: str, payload: bytes) -> int:
         print(f"arena bridge {verb}: {exc}", file=sys.stderr)
         return 2
     try:   # input errors (exit 2) apart from an unreachable Zenoh (exit 1)
-        settings = resolve_settings(args, load_lab_from_args(args))
-        settings.to_zenoh_config()
-    except (ConfigError, SessionError) as exc:
+        with exit_on_session_error(f"arena bridge {verb}", code=2):
+            settings = resolve_settings(args, load_lab_from_args(args))
+            settings.to_zenoh_config()
+    except ConfigError as exc:
         print(f"arena bridge {verb}: {exc}", file=sys.stderr)
         return 2
     ok = True
     n = 0
-    try:
+    with exit_on_session_error(f"arena bridge {verb}", code=1):   # no router: a runtime failure
         with open_session(settings) as session:
             # no consolidation: 'all' gets one reply per robot on the same key
             for r in session.get(key, payload=payload, timeout=args.timeout,
@@ -292,9 +291,6 @@ def _send(args, verb: str, payload: bytes) -> int:
                 n += 1
                 ok = ok and reply.ok
                 print(fmt_reply(reply), flush=True)
-    except SessionError as exc:
-        print(f"arena bridge {verb}: {exc}", file=sys.stderr)
-        return 1
     if n == 0:
         print(f"arena bridge {verb}: no bridge answered for robot {args.robot!r} within {args.timeout} s "
               "(unknown robot, or no bridge running on this Zenoh)", file=sys.stderr)

@@ -20,7 +20,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from urllib.parse import urlparse
 
-from arena.clitools import RUNTIME, fail
+from arena.clitools import RUNTIME, fail, formatter
 from arena.session import add_zenoh_arguments
 
 log = logging.getLogger("simulator")
@@ -59,7 +59,7 @@ def register(subparsers) -> argparse.ArgumentParser:
     """Add the ``sim`` subcommand to an ``arena`` subparsers object."""
     p = subparsers.add_parser(
         "sim", help="simulated arena: event camera, webcam and robots on loopback",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        formatter_class=formatter,
         description=__doc__, epilog=EXAMPLES)
     add_arguments(p)
     p.set_defaults(func=run)
@@ -314,12 +314,10 @@ class _TruthPublisher:
 
 def _start_truth_publisher(stack: ExitStack, args, specs, camera) -> _TruthPublisher:
     from arena.service import Service
-    from arena.session import SessionError, open_session
-    try:
+    from arena.clitools import exit_on_session_error
+    from arena.session import open_session
+    with exit_on_session_error("arena sim: cannot open the Zenoh session for --publish-truth"):
         session = stack.enter_context(open_session(args, wait_s=None))
-    except SessionError as e:
-        print(f"arena sim: cannot open the Zenoh session for --publish-truth: {e}", file=sys.stderr)
-        raise SystemExit(e.exit_code) from None
     svc = stack.enter_context(Service(session, "sim", "sim"))
     svc.set_state("running")
     print("truth    arena/sim/truth/<robot> (Zenoh)", flush=True)
@@ -375,7 +373,7 @@ def _loop(sim, cam, raw, truth, args, stop, truth_pub=None) -> None:
 def main(argv: list[str] | None = None) -> int:
     """``python -m simulator``: the same as ``arena sim``."""
     p = argparse.ArgumentParser(prog="python -m simulator", description=__doc__, epilog=EXAMPLES,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                                formatter_class=formatter)
     add_arguments(p)
     p.add_argument("-v", "--verbose", action="store_true", help="log more")
     args = p.parse_args(argv)

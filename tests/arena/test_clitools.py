@@ -14,9 +14,9 @@ from arena.session import SessionError, ZenohSettings
 
 REPO = Path(__file__).resolve().parents[2]
 
-#: the command lines that open Zenoh through arena.clitools (robot_bridge/cli.py: switched separately)
+#: the command lines that open Zenoh through arena.clitools
 CLIS = ["arena/cli.py", "viewer/cli.py", "ros2/cli.py", "recorder/cli.py", "groundtruth/cli.py", "tracker/cli.py",
-        "tracker/service.py"]
+        "tracker/service.py", "robot_bridge/cli.py", "camera_edge/cli.py", "simulator/cli.py"]
 
 
 def test_a_wrong_setting_is_one_line_and_exit_2(capsys, tmp_path):
