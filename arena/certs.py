@@ -15,8 +15,9 @@ The certificate's common name is the host name: the router's access-control poli
 (``deploy/zenoh/router.json5``) matches it with ``cert_common_names`` and the role with
 ``usernames``. The user ``router`` is the routers' own: its password (``router.env``) goes to
 router hosts only, and a router link is trusted only with a router certificate AND that password.
-Hosts named by ``--server-only`` (a mesh's central router) get a certificate that only serves
-TLS (extendedKeyUsage serverAuth), so nobody can present it as a client.
+Hosts named by ``--server-only`` (default: the host ``router``, the lab's router, central in a
+mesh) get a certificate that only serves TLS (extendedKeyUsage serverAuth), so nobody can present
+it as a client; ``--server-only none`` gives every host both uses.
 
 Private keys, ``users.txt`` and ``*.env`` are created with mode 0600 (never wider, whatever the
 umask) in a folder created with mode 0700.
@@ -245,7 +246,7 @@ def register(sub) -> None:
                "  arena certs pki --hosts router=198.18.0.1,camera=198.18.0.2,tracker=198.18.0.3,robot=198.18.0.4\n"
                "  arena certs pki --hosts laptop                 # add a host later (the CA is reused)\n"
                "  arena certs pki --hosts router=10.0.0.1+router.lab --users operator,viewer\n"
-               "  arena certs pki --hosts router=198.18.0.1 --server-only router   # a mesh's central router\n"
+               "  arena certs pki --hosts router2=198.18.0.11      # a second router of a mesh (a client of router)\n"
                "  openssl x509 -in pki/camera.pem -noout -text   # inspect one\n"
                "Then see docs/deployment.md (which files go to which host).")
     p.add_argument("dir", metavar="DIR", help="output folder (created; existing CA and certificates are reused)")
@@ -254,9 +255,10 @@ def register(sub) -> None:
     p.add_argument("--users", default=",".join(DEFAULT_USERS), metavar="USER,...",
                    help=f"roles given a password (default {','.join(DEFAULT_USERS)}); empty for none")
     p.add_argument("--days", type=int, default=825, help="host certificate validity in days (default 825)")
-    p.add_argument("--server-only", default="", metavar="NAME,...",
-                   help="hosts whose certificate only serves TLS (cannot be presented as a client): the "
-                        "central router of a mesh, which other routers connect to and which connects to none")
+    p.add_argument("--server-only", default="router", metavar="NAME,...",
+                   help="hosts whose certificate only serves TLS (cannot be presented as a client): the lab's "
+                        "router, central in a mesh, which other routers connect to and which connects to none "
+                        "(default: router; 'none' for no such host)")
     p.add_argument("--force", action="store_true", help="replace an existing CA, certificates and passwords")
     p.set_defaults(func=run)
 
@@ -269,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
         hosts = parse_hosts(args.hosts)
         users = [u.strip() for u in args.users.split(",") if u.strip()]
         out = Path(args.dir)
-        server_only = [n.strip() for n in args.server_only.split(",") if n.strip()]
+        server_only = [n.strip() for n in args.server_only.split(",") if n.strip() and n.strip() != "none"]
         written = make_lab_pki(out, hosts, users, args.days, args.force, server_only)
     except (CertError, OSError) as exc:
         print(f"arena certs: {exc}", file=sys.stderr)

@@ -100,7 +100,15 @@ def test_a_server_only_certificate_serves_tls_only(tmp_path):
     verify = subprocess.run(["openssl", "verify", "-CAfile", str(pki / "ca.pem"), "-purpose", "sslclient",
                              str(pki / "router.pem")], capture_output=True, text=True)
     assert verify.returncode != 0, verify.stdout
-    r = _certs(0o022, str(tmp_path / "other"), "--hosts", "router", "--users", "")  # the default: both uses
+    # the default: the host named router serves only, the others both; `none`: every host both
+    r = _certs(0o022, str(tmp_path / "default"), "--hosts", "router,camera", "--users", "")
+    assert r.returncode == 0, r.stderr
+    for name, want in (("router", "TLS Web Server Authentication"),
+                       ("camera", "TLS Web Server Authentication, TLS Web Client Authentication")):
+        got = subprocess.run(["openssl", "x509", "-in", str(tmp_path / "default" / f"{name}.pem"), "-noout",
+                              "-ext", "extendedKeyUsage"], capture_output=True, text=True).stdout
+        assert got.splitlines()[-1].strip() == want, (name, got)
+    r = _certs(0o022, str(tmp_path / "other"), "--hosts", "router", "--users", "", "--server-only", "none")
     assert r.returncode == 0, r.stderr
     assert "Client" in subprocess.run(["openssl", "x509", "-in", str(tmp_path / "other" / "router.pem"), "-noout",
                                        "-ext", "extendedKeyUsage"], capture_output=True, text=True).stdout

@@ -42,7 +42,9 @@ def test_certs_make_a_ca_host_certificates_and_passwords(tmp_path):
         assert f"CN = {host}" in _x509(pki / f"{host}.pem", "-subject")
     san = _x509(pki / "router.pem", "-ext", "subjectAltName,extendedKeyUsage")
     assert "IP Address:198.18.0.1" in san and "DNS:router" in san and "DNS:router.lab" in san
-    assert "TLS Web Server Authentication" in san and "TLS Web Client Authentication" in san
+    # the router's certificate only serves (the default --server-only router); other hosts' do both
+    assert "TLS Web Server Authentication" in san and "TLS Web Client Authentication" not in san
+    assert "TLS Web Client Authentication" in _x509(pki / "camera.pem", "-ext", "extendedKeyUsage")
     assert "IP Address" not in _x509(pki / "laptop.pem", "-ext", "subjectAltName")
     users = dict(line.split(":", 1) for line in (pki / "users.txt").read_text().split())
     assert set(users) == {"edge", "operator"} and len(set(users.values())) == 2

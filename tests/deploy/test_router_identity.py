@@ -2,7 +2,7 @@
 certificate AND the router-only user `router` (its password in router.env, on router hosts only).
 A client presenting a router's certificate with a client user gets that user's rules and nothing
 more: it reads no events and cannot e-stop a robot. The central router's certificate only serves
-TLS (`arena certs --server-only router`), so no client can present it at all. A real
+TLS (`arena certs` makes the host `router` so by default), so no client can present it at all. A real
 two-router mesh (docs/deployment.md) still forwards tracks and commands."""
 
 from __future__ import annotations
@@ -45,10 +45,10 @@ def mesh(deployment):
     lab, dep = deployment.lab, deployment
     subprocess.run(arena_cmd("certs", str(dep.pki), "--hosts", f"router2={lab.addr('tracker')}", "--users", ""),
                    check=True, capture_output=True)
-    # docs/deployment.md: the central router's certificate re-made serverAuth-only (same CA)
-    (dep.pki / "router.pem").unlink()
-    subprocess.run(arena_cmd("certs", str(dep.pki), "--hosts", f"router={lab.addr('router')}", "--users", "",
-                             "--server-only", "router"), check=True, capture_output=True)
+    # the central router's certificate is serverAuth-only: arena certs' default (the deployment's PKI)
+    eku = subprocess.run(["openssl", "x509", "-in", str(dep.pki / "router.pem"), "-noout", "-ext", "extendedKeyUsage"],
+                         capture_output=True, text=True, check=True).stdout
+    assert "Server" in eku and "Client" not in eku, eku
     base = dep.router_config.read_text()
     hub = dep.root / "hub.json5"
     hub.write_text(hub_config(base))
