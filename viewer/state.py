@@ -11,6 +11,7 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,6 +19,7 @@ import numpy as np
 from arena import codec
 from arena.homography import CalibrationError, calibration_points, fit_homography
 from arena.messages import EventWindow, GroundTruthPose, Status, Telemetry, Track
+from arena.timematch import NO_OVERLAP, PoseHistory, timed_error
 
 #: Display colours (RGB) as in the paper: ON (positive) black, OFF (negative) blue, no event white.
 ON_RGB = (0, 0, 0)
@@ -55,6 +57,20 @@ class _TrackView:
     latency_ms: float | None = None  # edge publish of the slice -> received here (wall clocks)
     trail_m: deque = field(default_factory=lambda: deque(maxlen=300))
     trail_px: deque = field(default_factory=lambda: deque(maxlen=300))
+    hist_sensor: PoseHistory = field(default_factory=PoseHistory)  # by stamp_us
+    hist_host: PoseHistory = field(default_factory=PoseHistory)  # by host_ns // 1000, when known
+
+    def add(self, msg: Track) -> None:
+        self.hist_sensor.add(msg.stamp_us, msg.x, msg.y)
+        if msg.host_ns is not None:
+            self.hist_host.add(msg.host_ns // 1000, msg.x, msg.y)
+
+
+@dataclass
+class _GtView:
+    msg: GroundTruthPose
+    seen: float  # monotonic s
+    hist: PoseHistory = field(default_factory=PoseHistory)  # by the poses' own stamps
 
 
 @dataclass
@@ -74,14 +90,20 @@ class ViewerState:
     ``camera``: the camera whose events are drawn (None: the first one seen). ``accumulate_us``:
     the event image shows the windows whose end lies in the last ``accumulate_us`` µs of sensor
     time. ``H_arena_to_px``: homography used to draw tracks that carry no ``u_px``/``v_px``.
-    ``robot_size_m``: (length, width) of the boxes drawn around tracks.
+    ``robot_size_m``: (length, width) of the boxes drawn around tracks. Tracks and ground-truth
+    poses not updated for ``track_timeout_s`` are dropped. One entry per track: when a track
+    (camera, track id) shows up on another key (``arena/robots/3`` becomes ``arena/robots/zumo1``
+    once it is named), its entry moves to that key. Each named track's ``error_m`` compares the
+    robot's ground-truth pose with the track interpolated at that pose's stamp, on the clock
+    ``gt_clock`` (see :func:`timed_error`). ``clock``: monotonic seconds (tests pass their own).
     """
 
     def __init__(self, camera: str | None = None, accumulate_us: int = 100_000,
                  H_arena_to_px: np.ndarray | None = None, arena_size_m: tuple[float, float] = (1.83, 1.83),
                  robot_size_m: tuple[float, float] = (0.10, 0.10), telemetry_len: int = 200,
                  track_timeout_s: float = 3.0, status_timeout_s: float = 5.0,
-                 max_windows: int = 1000, max_events: int = 4_000_000):
+                 max_windows: int = 1000, max_events: int = 4_000_000, gt_clock: str = "auto",
+                 clock: Callable[[], float] = time.monotonic):
         self.camera = camera
         self.accumulate_us = int(accumulate_us)
         self.H = H_arena_to_px
@@ -90,6 +112,10 @@ class ViewerState:
         self.telemetry_len = telemetry_len
         self.track_timeout_s = track_timeout_s
         self.status_timeout_s = status_timeout_s
+        if gt_clock not in ("auto", "sensor", "host"):
+            raise ViewerConfigError(f"gt_clock must be 'auto', 'sensor' or 'host', got {gt_clock!r}")
+        self.gt_clock = gt_clock
+        self._now = clock
         self._lock = threading.Lock()
         self._windows: deque[_Window] = deque()
         #: bounds of the accumulated image whatever the windows' times say (a flood of windows
@@ -99,7 +125,7 @@ class ViewerState:
         self._size: tuple[int, int] | None = None
         self._cam_info: dict = {}
         self._tracks: dict[str, _TrackView] = {}
-        self._gt: dict[str, tuple[GroundTruthPose, float]] = {}
+        self._gt: dict[str, _GtView] = {}
         self._telemetry: dict[str, dict[str, deque]] = {}
         self._status: dict[tuple[str, str], tuple[Status, float]] = {}
         self._alive: set[tuple[str, str]] = set()
@@ -131,25 +157,47 @@ class ViewerState:
 
     def on_track(self, key: str, msg: Track) -> None:
         """Add a track update received on ``key``."""
-        now = time.monotonic()
+        now = self._now()
         with self._lock:
             self.counts["tracks"] += 1
+            self._expire(now)
             tv = self._tracks.get(key)
+            # the same track under another key (numbered before it was named, or the other way
+            # round): one entry per track, the newest key's, which keeps the trail and history
+            for other in [k for k, t in self._tracks.items() if k != key and t.msg.track_id == msg.track_id
+                          and t.msg.camera == msg.camera]:
+                moved = self._tracks.pop(other)
+                if tv is None:
+                    tv = self._tracks[key] = moved
             if tv is None:
                 tv = self._tracks[key] = _TrackView(msg, now)
             tv.msg, tv.seen = msg, now
             edge_ns = msg.edge_publish_ns or msg.tracker_publish_ns
             tv.latency_ms = (time.time_ns() - edge_ns) / 1e6 if edge_ns else None
             tv.trail_m.append((round(msg.x, 4), round(msg.y, 4)))
+            tv.add(msg)
             uv = self._track_pixel(msg)
             if uv is not None:
                 tv.trail_px.append(uv)
 
     def on_groundtruth(self, msg: GroundTruthPose) -> None:
         """Add a ground-truth pose."""
+        now = self._now()
         with self._lock:
             self.counts["groundtruth"] += 1
-            self._gt[msg.robot] = (msg, time.monotonic())
+            self._expire(now)
+            gv = self._gt.get(msg.robot)
+            if gv is None:
+                gv = self._gt[msg.robot] = _GtView(msg, now)
+            gv.msg, gv.seen = msg, now
+            gv.hist.add(msg.stamp_us, msg.x, msg.y)
+
+    def _expire(self, now: float) -> None:
+        """Drop the tracks and ground-truth poses not updated for ``track_timeout_s`` (lock held)."""
+        for key in [k for k, t in self._tracks.items() if now - t.seen > self.track_timeout_s]:
+            del self._tracks[key]
+        for robot in [r for r, g in self._gt.items() if now - g.seen > self.track_timeout_s]:
+            del self._gt[robot]
 
     def on_telemetry(self, msg: Telemetry) -> None:
         """Add a telemetry sample (kept: wheel speeds m/s, gyro z rad/s, battery mV)."""
@@ -168,7 +216,7 @@ class ViewerState:
         """Add a service status."""
         with self._lock:
             self.counts["status"] += 1
-            self._status[(msg.role, msg.name)] = (msg, time.monotonic())
+            self._status[(msg.role, msg.name)] = (msg, self._now())
 
     def on_alive(self, role: str, name: str, alive: bool) -> None:
         """A liveliness token appeared (``alive``) or disappeared."""
@@ -192,7 +240,7 @@ class ViewerState:
     # -- outputs ------------------------------------------------------------------------------
     def track_count(self) -> int:
         """Number of tracks currently shown (updated within the last ``track_timeout_s``)."""
-        now = time.monotonic()
+        now = self._now()
         with self._lock:
             return sum(1 for t in self._tracks.values() if now - t.seen <= self.track_timeout_s)
 
@@ -233,15 +281,16 @@ class ViewerState:
 
     def snapshot(self) -> dict:
         """Everything the page shows, as a JSON-able dict (sent by Server-Sent Events)."""
-        now = time.monotonic()
+        now = self._now()
         with self._lock:
-            for key in [k for k, t in self._tracks.items() if now - t.seen > self.track_timeout_s]:
-                del self._tracks[key]
+            self._expire(now)
             tracks = []
             for key, tv in sorted(self._tracks.items()):
                 m = tv.msg
                 uv = self._track_pixel(m)
                 speed = math.hypot(m.vx, m.vy) if m.vx is not None and m.vy is not None else None
+                gv = self._gt.get(m.robot) if m.robot else None
+                te = timed_error(tv.hist_sensor, tv.hist_host, gv.hist, self.gt_clock) if gv else None
                 tracks.append({
                     "key": key, "id": m.track_id, "robot": m.robot, "label": m.robot or f"#{m.track_id}",
                     "x": _r(m.x), "y": _r(m.y), "yaw": _r(m.yaw), "speed": _r(speed), "state": m.state,
@@ -250,11 +299,16 @@ class ViewerState:
                     "heading_px": self._heading_px(m.x, m.y, m.yaw, uv) if uv else None,
                     "trail_m": list(tv.trail_m), "trail_px": list(tv.trail_px), "age_s": round(now - tv.seen, 2),
                     "latency_ms": _r(tv.latency_ms, 1),
+                    # ground truth of the track's robot vs the track at that pose's stamp (None: no
+                    # ground truth of that robot; error_note says why there is no figure)
+                    "error_m": _r(te.err_m) if te else None,
+                    "error_note": None if te or gv is None else NO_OVERLAP,
+                    "error_clock": te.clock if te else None,
+                    "error_behind_ms": _r(te.behind_us / 1000, 1) if te else None,
                 })
             gts = []
-            for robot, (g, seen) in sorted(self._gt.items()):
-                if now - seen > self.track_timeout_s:
-                    continue
+            for robot, gv in sorted(self._gt.items()):
+                g = gv.msg
                 gts.append({"robot": robot, "x": _r(g.x), "y": _r(g.y), "yaw": _r(g.yaw), "detector": g.detector,
                             # the pose's own u_px/v_px are the webcam's: project the metres instead
                             "uv": list(self._pixel(g.x, g.y, None, None) or []) or None})

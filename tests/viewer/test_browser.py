@@ -117,6 +117,7 @@ if (!s) return null;
 return {frames: window.arenaFrames,
         tracks: s.tracks.map(t => ({label: t.label, x: t.x, y: t.y, uv: t.uv, box: t.box_px, trail: t.trail_px.length})),
         rows: Array.from(document.querySelectorAll('#tracks tbody tr td:first-child')).map(td => td.textContent),
+        errors: Array.from(document.querySelectorAll('#tracks tbody tr td:nth-child(8)')).map(td => td.textContent),
         services: Array.from(document.querySelectorAll('#services tbody tr')).map(tr => tr.textContent),
         sparks: document.querySelectorAll('#telemetry canvas').length,
         gt: s.groundtruth.length, conn: document.getElementById('conn').textContent};
@@ -170,6 +171,8 @@ def test_viewer_in_headless_chromium_shows_moving_tracks(chromium, router, tmp_p
 
     # the page's own state: both robots, drawn with boxes, moved between the two screenshots
     assert sorted(s2["rows"]) == ["zumo1", "zumo2"] and s2["conn"] == "live"
+    # the feed's ground truth is 1 cm off in x at the tracks' own stamps: the error column says 1 cm
+    assert s2["errors"] == ["0.010", "0.010"], s2["errors"]
     p1 = {t["label"]: t for t in s1["tracks"]}
     for t in s2["tracks"]:
         moved_m = math.hypot(t["x"] - p1[t["label"]]["x"], t["y"] - p1[t["label"]]["y"])

@@ -101,14 +101,13 @@ function drawArena(s) {
 
 // ---- tables and sparklines -------------------------------------------------------------------
 function drawTracks(s) {
-  const gt = Object.fromEntries(s.groundtruth.map((g) => [g.robot, g]));
   $("tracks").tBodies[0].innerHTML = s.tracks.map((t) => {
-    const g = t.robot ? gt[t.robot] : null;
-    const err = g ? Math.hypot(t.x - g.x, t.y - g.y) : null;
+    // computed by the server: the robot's ground truth vs the track at that pose's stamp
+    const err = t.error_m !== null && t.error_m !== undefined ? fmt(t.error_m, 3) : esc(t.error_note || "–");
     const hd = t.yaw === null ? null : ((((t.yaw * 180) / Math.PI + 180) % 360) + 360) % 360 - 180;
     return `<tr data-track="${esc(t.key)}"><td style="color:${colour(t.label)}">${esc(t.label)}</td><td>${fmt(t.x, 3)}</td>` +
       `<td>${fmt(t.y, 3)}</td><td>${fmt(hd, 0)}</td><td>${fmt(t.speed, 2)}</td><td>${esc(t.state)}</td>` +
-      `<td>${t.n_events}</td><td>${fmt(err, 3)}</td><td>${fmt(t.latency_ms, 0)}</td></tr>`;
+      `<td>${t.n_events}</td><td>${err}</td><td>${fmt(t.latency_ms, 0)}</td></tr>`;
   }).join("");
 }
 
