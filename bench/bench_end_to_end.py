@@ -72,7 +72,8 @@ def paper_child(args) -> int:
     from tracker.calibration import Calibration
     from tracker.detect import PaperConfig, PaperDetector
     from tracker.idtrack import IDTrack
-    from tracker.pipeline import PAPER_SIGMA_PX, Pipeline, TrackCsvWriter
+    from arena.formats.tables import TrackCsvWriter
+    from tracker.pipeline import PAPER_SIGMA_PX, Pipeline
 
     w0, c0 = time.perf_counter(), time.process_time()
     try:

@@ -15,7 +15,8 @@ import time
 
 import numpy as np
 
-from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE
+from groundtruth.metrics import evaluate
 
 
 def scene(n_robots: int, seconds: float, seed: int = 0):

@@ -64,7 +64,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+from arena.formats.tables import TRUTH_DTYPE, tracks_array
+from groundtruth.metrics import evaluate
 from simulator.camera import shell_reflectance
 from simulator.dvs import DvsParams
 from simulator.scenarios import COLOURS, Scenario, generate
@@ -181,22 +182,20 @@ def run_tracker(rec, tracker: str, detector: str, slice_us: int = 10_000) -> tup
     """Tracks (TRACK_DTYPE) of one recording and the median per-slice time (ms)."""
     cal = Calibration.from_dict(rec.calibration)
     pipe = Pipeline(cal, tracker=tracker, detector=detector)
-    rows, times = [], []
+    tracks, times = [], []
     chunks = (rec.events[i:i + 50_000] for i in range(0, rec.events.size, 50_000))
     for t_end, ev in iter_slices(chunks, slice_us, start_us=0):
         t0 = time.perf_counter()
-        tracks = pipe.push(ev, t_end)
+        out = pipe.push(ev, t_end)
         times.append(time.perf_counter() - t0)
-        for t in tracks:
-            rows.append((t.t_us, str(t.track_id), t.robot or "", t.x, t.y, t.yaw, t.vx, t.vy, t.u, t.v,
-                         t.state, t.n_events))
-    return np.array(rows, dtype=TRACK_DTYPE), float(np.median(times) * 1e3) if times else float("nan")
+        tracks.extend(out)
+    return tracks_array(tracks), float(np.median(times) * 1e3) if times else float("nan")
 
 
 def recorded_runs(dirs: list[str]) -> list[tuple[str, SimpleNamespace, np.ndarray]]:
     """(label, recording with ``events`` and ``calibration``, truth) of recorded demo runs."""
     from arena.formats import read_events
-    from groundtruth.metrics import read_truth_csv
+    from arena.formats.tables import read_truth_csv
 
     out = []
     for d in map(Path, dirs):

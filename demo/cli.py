@@ -604,7 +604,8 @@ def _webcam_scores(run_dir: Path, truth, end_us):
     """The webcam ground truth (``groundtruth.csv``) scored like a tracker against the exact poses
     ``truth`` until ``end_us``; None when the file is missing or has no rows."""
     from demo.report import webcam_as_tracks
-    from groundtruth.metrics import evaluate, read_truth_csv
+    from arena.formats.tables import read_truth_csv
+    from groundtruth.metrics import evaluate
 
     path = run_dir / "groundtruth.csv"
     if not path.exists():
@@ -664,7 +665,8 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
     webcam_scores = None
     scored = None
     if tracks.exists() and truth.exists():
-        from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
+        from arena.formats.tables import read_tracks_csv, read_truth_csv
+        from groundtruth.metrics import evaluate
 
         try:
             tr, gt = read_tracks_csv(tracks), read_truth_csv(truth)

@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, a_ratio, evaluate, n_avg_clusters
+from arena.formats.tables import TRUTH_DTYPE, tracks_array
+from groundtruth.metrics import a_ratio, evaluate, n_avg_clusters
 from groundtruth.report import fmt, markdown_table
 
 log = logging.getLogger("arena.experiment")
@@ -115,7 +116,7 @@ class Recording:
     """What the study needs of a simulated run (arena frame for truth, sensor frame for events)."""
 
     events: np.ndarray       # arena.events.EVENT_DTYPE, µs
-    truth: np.ndarray        # groundtruth.metrics.TRUTH_DTYPE
+    truth: np.ndarray        # arena.formats.tables.TRUTH_DTYPE
     calibration: dict        # the project's calibration JSON dict
     width: int
     height: int
@@ -153,14 +154,12 @@ def track(rec: Recording, tracker: str, t_a_ms: float, slice_us: int = 10_000) -
     pipe = Pipeline(Calibration.from_dict(rec.calibration), tracker=tracker,
                     detector="paper" if tracker == "idtrack" else "default",
                     accumulation_us=int(round(t_a_ms * 1000)))
-    rows = []
+    tracks = []
     t0 = time.process_time()
     for t_end, ev in iter_slices([rec.events], slice_us):
-        for tr in pipe.push(ev, t_end):
-            rows.append((tr.t_us, str(tr.track_id), tr.robot or "", tr.x, tr.y, tr.yaw, tr.vx, tr.vy,
-                         tr.u, tr.v, tr.state, tr.n_events))
+        tracks.extend(pipe.push(ev, t_end))
     secs = time.process_time() - t0
-    return np.array(rows, dtype=TRACK_DTYPE) if rows else np.zeros(0, TRACK_DTYPE), secs
+    return tracks_array(tracks), secs
 
 
 # ------------------------------------------------------------------------------------------

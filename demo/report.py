@@ -27,9 +27,9 @@ OK_TEXT = ("every service ran and stopped cleanly, every mission ran until the d
 
 
 def webcam_as_tracks(webcam: np.ndarray) -> np.ndarray:
-    """The webcam ground truth (a :data:`groundtruth.metrics.TRUTH_DTYPE` array) as tracks, one
+    """The webcam ground truth (a :data:`arena.formats.tables.TRUTH_DTYPE` array) as tracks, one
     track per robot marker, so :func:`groundtruth.metrics.evaluate` can score it like a tracker."""
-    from groundtruth.metrics import TRACK_DTYPE
+    from arena.formats.tables import TRACK_DTYPE
 
     ok = np.isfinite(webcam["x_m"]) & np.isfinite(webcam["y_m"])
     w = webcam[ok]

@@ -79,7 +79,7 @@ def register_eval(sub) -> None:
 
 def _load_truth(args):
     """(truth array, truth kind, description lines) of ``--truth``; raises CsvFormatError/MocapError."""
-    from groundtruth.metrics import TRUTH_REQUIRED, read_truth_csv
+    from arena.formats.tables import TRUTH_REQUIRED, read_truth_csv
     from groundtruth.mocap import MocapError, is_pose_csv_header, read_pose_bag, read_pose_csv
 
     path = Path(args.truth)
@@ -138,7 +138,8 @@ def _alignment_lines(al) -> list[str]:
 
 def run_eval(args: argparse.Namespace) -> int:
     """Run ``arena eval``; returns the exit code."""
-    from groundtruth.metrics import CsvFormatError, evaluate, read_tracks_csv
+    from arena.formats.tables import CsvFormatError, read_tracks_csv
+    from groundtruth.metrics import evaluate
     from groundtruth.mocap import MocapError, align_truth
     from groundtruth.report import format_scores, no_ground_truth, write_eval_report, write_json
 

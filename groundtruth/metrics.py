@@ -1,14 +1,14 @@
 """Scoring tracks against ground truth: the one scorer every benchmark in the project uses.
 
-Pure numpy/scipy apart from the CSV readers and writers of tracks and truth (``read_tracks_csv``,
-``read_truth_csv``, ``write_tracks_csv``, ``write_truth_csv``): no other files, no clocks, no Zenoh.
+Pure numpy/scipy: no files, no clocks, no Zenoh. The tracks and truth CSVs, their dtypes
+(``TRACK_DTYPE``, ``TRUTH_DTYPE``), readers and writers are :mod:`arena.formats.tables`.
 
 Inputs (arena frame: metres, yaw in rad counter-clockwise from +x; times in µs):
 
 * tracks, from ``read_tracks_csv`` (header ``t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,
-  u_px,v_px,state,n_events``, empty where unknown), one row per track per tracker update;
-* truth, from ``read_truth_csv``: the simulator's exact truth (``t_us,robot,x_m,y_m,yaw_rad[,vx_mps,
-  vy_mps,...]`` at >= 200 Hz) or the webcam ground truth (``t_us,robot,x_m,y_m,yaw_rad,u_px,v_px,
+  u_px,v_px,state,n_events,host_ns``, empty where unknown), one row per track per tracker update;
+* truth, from ``read_truth_csv``: the simulator's exact truth (``t_us,robot,x_m,y_m,yaw_rad,vx_mps,
+  vy_mps`` at >= 200 Hz) or the webcam ground truth (``t_us,robot,x_m,y_m,yaw_rad,u_px,v_px,
   detector`` at ~24 fps).
 
 How a run is scored (``evaluate``):
@@ -43,185 +43,19 @@ How a run is scored (``evaluate``):
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+# the arrays evaluate() scores; defined with their CSVs in arena.formats.tables. Re-exported only for
+# tests/demo/test_scorer.py (being written alongside): import them from arena.formats.tables
+from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE  # noqa: F401
 from arena.messages import TENTATIVE
 
-TRACK_COLUMNS = ("t_us", "track_id", "robot", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps",
-                 "u_px", "v_px", "state", "n_events")
-TRACK_REQUIRED = ("t_us", "track_id", "x_m", "y_m")
-TRUTH_REQUIRED = ("t_us", "robot", "x_m", "y_m")
-
-#: Structured dtype of tracks: NaN for unknown floats, "" for unknown strings, -1 for unknown n_events.
-TRACK_DTYPE = np.dtype([
-    ("t_us", "<i8"), ("track_id", "U64"), ("robot", "U64"), ("x_m", "<f8"), ("y_m", "<f8"),
-    ("yaw_rad", "<f8"), ("vx_mps", "<f8"), ("vy_mps", "<f8"), ("u_px", "<f8"), ("v_px", "<f8"),
-    ("state", "U16"), ("n_events", "<i8"),
-])
-#: Structured dtype of truth / ground truth: NaN where unknown.
-TRUTH_DTYPE = np.dtype([
-    ("t_us", "<i8"), ("robot", "U64"), ("x_m", "<f8"), ("y_m", "<f8"), ("yaw_rad", "<f8"),
-    ("vx_mps", "<f8"), ("vy_mps", "<f8"),
-])
-
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)
-
-
-class CsvFormatError(ValueError):
-    """A tracks or truth CSV that cannot be read: the message names the file, line and column."""
-
-
-# ----------------------------------------------------------------------------------------------
-# CSV readers
-
-
-def _read_csv(path: str | Path, required: Sequence[str], what: str) -> tuple[list[str], list[list[str]]]:
-    path = Path(path)
-    if not path.is_file():
-        raise CsvFormatError(f"{what} file not found: {path}")
-    try:
-        with path.open(newline="", encoding="utf-8") as fh:
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            if header is None:
-                raise CsvFormatError(f"{what} file {path} is empty (expected a header with {','.join(required)})")
-            header = [h.strip() for h in header]
-            missing = [c for c in required if c not in header]
-            if missing:
-                raise CsvFormatError(
-                    f"{what} file {path}: header lacks column(s) {', '.join(missing)}; "
-                    f"found {','.join(header)}")
-            rows = [r for r in reader if r and any(c.strip() for c in r)]
-    except UnicodeDecodeError as exc:
-        bad = exc.object[exc.start:exc.start + 1].hex()
-        raise CsvFormatError(f"{what} file {path} is not a text CSV (byte 0x{bad} is not UTF-8): give the "
-                             f"CSV with the header {','.join(required)},...") from None
-    except csv.Error as exc:
-        raise CsvFormatError(f"{what} file {path} is not a readable CSV ({exc})") from None
-    return header, rows
-
-
-def _column(header: list[str], rows: list[list[str]], name: str, kind: str, path, default=None):
-    """Parse one column: kind 'i' (int), 'f' (float, '' -> NaN) or 's' (str)."""
-    if name not in header:
-        n = len(rows)
-        if kind == "f":
-            return np.full(n, np.nan)
-        if kind == "i":
-            return np.full(n, -1 if default is None else default, dtype=np.int64)
-        return np.full(n, "", dtype=object)
-    j = header.index(name)
-    out = []
-    for i, r in enumerate(rows):
-        s = r[j].strip() if j < len(r) else ""
-        try:
-            if kind == "s":
-                out.append(s)
-            elif kind == "f":
-                out.append(float(s) if s else math.nan)
-            elif s == "":
-                if default is None:
-                    raise ValueError("empty")
-                out.append(default)
-            else:
-                out.append(int(float(s)) if ("." in s or "e" in s.lower()) else int(s))
-        except (ValueError, OverflowError):
-            raise CsvFormatError(f"{path}: line {i + 2}, column {name}: cannot read {s[:40]!r} as "
-                                 f"{ {'i': 'an integer', 'f': 'a number'}[kind] }") from None
-    try:
-        return np.asarray(out, dtype=object if kind == "s" else (np.float64 if kind == "f" else np.int64))
-    except OverflowError:   # an integer beyond 64 bits
-        raise CsvFormatError(f"{path}: column {name}: a value is out of range for a 64-bit integer") from None
-
-
-def read_tracks_csv(path: str | Path, clock: str = "sensor") -> np.ndarray:
-    """Read a tracker CSV into a :data:`TRACK_DTYPE` array (times µs, metres, rad, m/s, px).
-
-    Required columns: ``t_us,track_id,x_m,y_m``; the others of :data:`TRACK_COLUMNS` are optional.
-    ``clock="host"``: ``t_us`` becomes the rows' host capture time (the ``host_ns`` column of live
-    tracks, µs since the epoch); rows without one (an empty cell) are left out, a file with none
-    is an error, and so is a negative one (a broken value, not an absent one).
-    Raises :class:`CsvFormatError` for a missing or empty file, a wrong header or a bad value.
-    """
-    if clock not in ("sensor", "host"):
-        raise ValueError(f"clock must be 'sensor' or 'host', got {clock!r}")
-    header, rows = _read_csv(path, TRACK_REQUIRED, "tracks")
-    if clock == "host":
-        host = _column(header, rows, "host_ns", "i", path, default=-1)   # an empty cell: -1, absent
-        if "host_ns" in header:   # a host time before the epoch is a broken value, not an absent one
-            j = header.index("host_ns")
-            bad = [i for i, r in enumerate(rows) if host[i] < 0 and j < len(r) and r[j].strip()]
-            if bad:
-                raise CsvFormatError(f"{path}: line {bad[0] + 2}, column host_ns: {rows[bad[0]][j].strip()[:40]} "
-                                     "is negative (ns since the Unix epoch, >= 0; leave the cell empty when "
-                                     "the host time is unknown)")
-        if not (host >= 0).any():
-            raise CsvFormatError(f"{path}: no row has a host_ns (tracks of a file replayed faster than real "
-                                 "time, or of an older tracker): score on the sensor clock")
-        rows = [r for r, h in zip(rows, host) if h >= 0]
-        host = host[host >= 0]
-    out = np.empty(len(rows), dtype=TRACK_DTYPE)
-    out["t_us"] = host // 1000 if clock == "host" else _column(header, rows, "t_us", "i", path)
-    for name in ("track_id", "robot", "state"):
-        out[name] = _column(header, rows, name, "s", path)
-    for name in ("x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps", "u_px", "v_px"):
-        out[name] = _column(header, rows, name, "f", path)
-    out["n_events"] = _column(header, rows, "n_events", "i", path, default=-1)
-    if np.any(out["track_id"] == ""):
-        line = int(np.flatnonzero(out["track_id"] == "")[0]) + 2
-        raise CsvFormatError(f"{path}: line {line}: empty track_id")
-    return out
-
-
-def read_truth_csv(path: str | Path) -> np.ndarray:
-    """Read a truth or ground-truth CSV into a :data:`TRUTH_DTYPE` array.
-
-    Required columns: ``t_us,robot,x_m,y_m``; ``yaw_rad``, ``vx_mps``, ``vy_mps`` are used when
-    present; other columns (``u_px``, ``detector``, ...) are ignored. Rows with empty x/y (robot
-    not seen) are kept with NaN and skipped by :func:`evaluate`.
-    """
-    header, rows = _read_csv(path, TRUTH_REQUIRED, "truth")
-    out = np.empty(len(rows), dtype=TRUTH_DTYPE)
-    out["t_us"] = _column(header, rows, "t_us", "i", path)
-    out["robot"] = _column(header, rows, "robot", "s", path)
-    for name in ("x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps"):
-        out[name] = _column(header, rows, name, "f", path)
-    if np.any(out["robot"] == ""):
-        line = int(np.flatnonzero(out["robot"] == "")[0]) + 2
-        raise CsvFormatError(f"{path}: line {line}: empty robot name")
-    return out
-
-
-def write_tracks_csv(path: str | Path, tracks: np.ndarray) -> None:
-    """Write a :data:`TRACK_DTYPE` array with the standard header (NaN and -1 become empty)."""
-    with Path(path).open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(TRACK_COLUMNS)
-        for r in tracks:
-            w.writerow([_fmt(r[c]) if c != "n_events" else ("" if r[c] < 0 else int(r[c]))
-                        for c in TRACK_COLUMNS])
-
-
-def write_truth_csv(path: str | Path, truth: np.ndarray) -> None:
-    """Write a :data:`TRUTH_DTYPE` array with the header ``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps``."""
-    with Path(path).open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(TRUTH_DTYPE.names)
-        for r in truth:
-            w.writerow([_fmt(r[c]) for c in TRUTH_DTYPE.names])
-
-
-def _fmt(v) -> str:
-    if isinstance(v, (float, np.floating)):
-        return "" if not np.isfinite(v) else f"{float(v):.6f}"
-    return str(v)
 
 
 # ----------------------------------------------------------------------------------------------

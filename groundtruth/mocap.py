@@ -17,8 +17,8 @@ on the tracks' clock and frame:
   Pairs farther than the gate after a fit are dropped and the fit repeated.
 
 The core (:func:`fit_transform`, :func:`speed_on_grid`, :func:`estimate_offset`,
-:func:`align_truth`) is pure numpy/scipy on :data:`~groundtruth.metrics.TRUTH_DTYPE` /
-:data:`~groundtruth.metrics.TRACK_DTYPE` arrays. The readers at the bottom read a rosbag2 folder
+:func:`align_truth`) is pure numpy/scipy on :data:`~arena.formats.tables.TRUTH_DTYPE` /
+:data:`~arena.formats.tables.TRACK_DTYPE` arrays. The readers at the bottom read a rosbag2 folder
 or an ``.mcap`` file of ``geometry_msgs/msg/PoseStamped`` (``rosbags``, the optional ``ros2``
 extra, imported when called) and a CSV of timestamped poses (:func:`read_pose_csv`).
 
@@ -37,7 +37,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from groundtruth.metrics import TRUTH_DTYPE
+from arena.formats.tables import TRUTH_DTYPE
 
 POSE_TYPE = "geometry_msgs/msg/PoseStamped"
 #: the one line printed when rosbags is missing

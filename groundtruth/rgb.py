@@ -26,7 +26,6 @@ each frame when it is captured.
 
 from __future__ import annotations
 
-import csv
 import math
 import time
 from collections import deque
@@ -38,13 +37,10 @@ import numpy as np
 
 from groundtruth.homography import Homography
 
-#: Column order of the ground-truth CSV.
-CSV_FIELDS = ("t_us", "robot", "x_m", "y_m", "yaw_rad", "u_px", "v_px", "detector")
-
-
 @dataclass
 class Detection:
-    """One robot seen in one frame.
+    """One robot seen in one frame (a row of the ground-truth CSV:
+    :class:`arena.formats.tables.GroundTruthCsvWriter` writes them).
 
     Attributes:
         t_us: capture time of the frame, µs (host clock for live sources, media time for files).
@@ -63,34 +59,6 @@ class Detection:
     u_px: float
     v_px: float
     detector: str
-
-    def csv_row(self) -> list:
-        """Values in :data:`CSV_FIELDS` order, floats rounded (0.1 mm, 1e-5 rad, 0.01 px)."""
-        return [self.t_us, self.robot, f"{self.x_m:.5f}", f"{self.y_m:.5f}",
-                "nan" if math.isnan(self.yaw_rad) else f"{self.yaw_rad:.5f}",
-                f"{self.u_px:.2f}", f"{self.v_px:.2f}", self.detector]
-
-
-class DetectionWriter:
-    """Write detections to a CSV file with the :data:`CSV_FIELDS` header."""
-
-    def __init__(self, path: str | Path):
-        self._f = open(path, "w", newline="")
-        self._w = csv.writer(self._f)
-        self._w.writerow(CSV_FIELDS)
-
-    def write(self, dets: list[Detection]) -> None:
-        for d in dets:
-            self._w.writerow(d.csv_row())
-
-    def close(self) -> None:
-        self._f.close()
-
-    def __enter__(self) -> "DetectionWriter":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 def _wrap(a: float) -> float:

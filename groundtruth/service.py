@@ -27,10 +27,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from arena.formats.tables import GroundTruthCsvWriter
 from arena.keys import groundtruth_key
 from arena.messages import GroundTruthPose
 from groundtruth.homography import CalibrationError, Homography, homography_from_calibration
-from groundtruth.rgb import (WHITE_V, Detection, DetectionWriter, FrameSource, HsvDetector, HsvRange,
+from groundtruth.rgb import (WHITE_V, Detection, FrameSource, HsvDetector, HsvRange,
                              MarkerDetector, annotate, hsv_range_from_rgb)
 
 log = logging.getLogger("groundtruth.service")
@@ -224,7 +225,7 @@ class GroundTruthRunner:
     def __init__(self, session, source: FrameSource, detector, svc=None, csv_path=None,
                  annotate_path=None):
         self.session, self.source, self.detector, self.svc = session, source, detector, svc
-        self._csv = DetectionWriter(csv_path) if csv_path else None
+        self._csv = GroundTruthCsvWriter(csv_path) if csv_path else None
         self._ann = (AnnotatedOutput(annotate_path, source.fps, getattr(detector, "homography", None))
                      if annotate_path else None)
         self._pubs: dict[str, object] = {}

@@ -1,11 +1,13 @@
-"""Writing simulated recordings: Prophesee RAW (EVT 3.0), the paper's CSV, ``.npz``, truth CSV.
+"""Writing simulated recordings: Prophesee RAW (EVT 3.0), the paper's CSV, ``.npz``.
 
 * ``.raw``: Prophesee header lines (``% evt 3.0``, ``% format EVT3;height=H;width=W``,
   ``% geometry WxH``, ..., ``% end``) followed by EVT 3.0 words (:mod:`simulator.evt3`).
 * ``.csv``: the paper's event CSV, header ``x,y,p,t`` (px, px, 1 = ON / 0 = OFF, µs).
 * ``.npz``: ``events`` (EVENT_DTYPE), ``is_signal``, ``truth``, ``robot_names``,
   ``calibration`` (JSON string), ``width``, ``height``, ``homography``.
-* truth CSV: ``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps`` with ``robot`` the robot name.
+
+The truth CSV (``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps`` with ``robot`` the robot name) is
+:class:`arena.formats.tables.TruthCsvWriter` (imported here for ``arena sim --truth-csv``).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from arena.events import as_events
+from arena.formats.tables import TruthCsvWriter  # noqa: F401 - simulator.cli writes truth.csv with it
 from simulator.evt3 import Evt3Encoder
 
 EVENT_FORMATS = (".raw", ".csv", ".npz")
@@ -80,43 +83,6 @@ def write_events_csv(path: str | Path, events: np.ndarray) -> None:
     with open(path, "w") as f:
         f.write("x,y,p,t\n")
         np.savetxt(f, table, fmt="%d", delimiter=",")
-
-
-class TruthCsvWriter:
-    """Incremental truth CSV writer: ``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps`` (robot =
-    name; metres, radians CCW from arena +x, m/s; arena frame)."""
-
-    HEADER = "t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps\n"
-
-    def __init__(self, path: str | Path, robot_names: list[str]):
-        self.path = Path(path)
-        self.names = list(robot_names)
-        self._f = open(self.path, "w")
-        self._f.write(self.HEADER)
-
-    def write(self, truth: np.ndarray) -> None:
-        """Append rows of :data:`simulator.simulation.TRUTH_DTYPE`."""
-        names = self.names
-        # plain tuples: reading numpy record fields one by one cost 5x more (the simulator
-        # writes 4 robots x 1 kHz rows)
-        self._f.writelines(f"{t},{names[r]},{x:.5f},{y:.5f},{a:.5f},{vx:.4f},{vy:.4f}\n"
-                           for t, r, x, y, a, vx, vy in truth.tolist())
-
-    def close(self) -> None:
-        self._f.close()
-
-    def __enter__(self) -> "TruthCsvWriter":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-
-def write_truth_csv(path: str | Path, truth: np.ndarray, robot_names: list[str]) -> Path:
-    """Write truth rows to a CSV (see :class:`TruthCsvWriter`)."""
-    with TruthCsvWriter(path, robot_names) as w:
-        w.write(truth)
-    return Path(path)
 
 
 def save_recording(rec, path: str | Path) -> Path:

@@ -12,13 +12,14 @@ clocks, files or sockets; the offline CLI and the live service feed it.
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Iterable, Iterator
-from typing import IO
 
 import numpy as np
 
+# the tracks CSV is a contract of arena/ (arena.formats.tables); re-exported here for tracker.cli and
+# tracker.service, which write it, and the documented ``tracker.pipeline.TrackCsvWriter``
+from arena.formats.tables import TRACK_CSV_HEADER, TrackCsvWriter
 from arena.slicing import Slicer
 from tracker.accumulate import PixelWindow
 from tracker.calibration import DEFAULT_ROBOT_HEIGHT_M, FALLBACK_CAMERA_HEIGHT_M, Calibration
@@ -34,9 +35,6 @@ TRACKERS = ("fleet", "idtrack")
 DETECTORS = ("default", "paper")
 #: The paper's new-robot distance (authors' code), px.
 PAPER_SIGMA_PX = 100.0
-#: Columns of the tracks CSV.
-TRACK_CSV_HEADER = ("t_us", "track_id", "robot", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps",
-                    "u_px", "v_px", "state", "n_events", "host_ns")
 
 
 class Pipeline:
@@ -226,28 +224,3 @@ def iter_slices(chunks: Iterable[np.ndarray], slice_us: int, start_us: int | Non
             yield s.t_end_us, s.events
     for s in slicer.flush():
         yield s.t_end_us, s.events
-
-
-def _fmt(x: float, digits: int) -> str:
-    return "" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
-
-
-class TrackCsvWriter:
-    """Writes tracks as CSV rows with :data:`TRACK_CSV_HEADER` (m, rad, m/s, px; empty = unknown).
-
-    ``host_ns``: the host capture time of ``t_us`` (ns since the epoch), written when the caller
-    knows the sensor-to-host offset of the window (``write(..., sensor_to_host_ns=...)``)."""
-
-    def __init__(self, stream: IO[str]) -> None:
-        self._w = csv.writer(stream, lineterminator="\n")
-        self._w.writerow(TRACK_CSV_HEADER)
-
-    def write(self, tracks: Iterable[TrackedRobot], sensor_to_host_ns: int | None = None) -> int:
-        n = 0
-        for tr in tracks:
-            host = "" if sensor_to_host_ns is None else int(tr.t_us) * 1000 + int(sensor_to_host_ns)
-            self._w.writerow([tr.t_us, tr.track_id, tr.robot or "", _fmt(tr.x, 5), _fmt(tr.y, 5),
-                              _fmt(tr.yaw, 5), _fmt(tr.vx, 4), _fmt(tr.vy, 4), _fmt(tr.u, 2),
-                              _fmt(tr.v, 2), tr.state, tr.n_events, host])
-            n += 1
-        return n

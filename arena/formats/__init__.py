@@ -6,6 +6,9 @@ and ``.npz`` (arrays x, y, p, t). Write: RAW EVT 3.0 or 2.0 (``evt=3|2``), DAT,
 AEDAT4, CSV, npz/npy. Events are :data:`arena.events.EVENT_DTYPE` (px, px, 1=ON, µs),
 timestamps are the sensor's absolute ones.
 
+The tracks CSV and the truth CSVs (the tracker's output, the simulator's exact poses, the webcam
+ground truth) are :mod:`arena.formats.tables`: their headers, dtypes, writers and readers.
+
 >>> ev, width, height = read_events("rec.raw")            # doctest: +SKIP
 >>> for chunk in iter_events("rec.aedat4"): ...           # doctest: +SKIP
 >>> write_events("rec.dat", ev, width, height)            # doctest: +SKIP
@@ -15,22 +18,33 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import importlib
+
 import numpy as np
 
-from arena.formats.aedat4 import Aedat4Reader, Aedat4Writer
 from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, SkippedData
-from arena.formats.csvfile import CsvReader, CsvWriter
-from arena.formats.dat import DatReader, DatWriter
-from arena.formats.numpy_files import NumpyReader, NumpyWriter
-from arena.formats.raw import RawReader, RawWriter
+from arena.formats.tables import (GROUNDTRUTH_CSV_HEADER, TRACK_CSV_HEADER, TRACK_DTYPE, TRACK_REQUIRED,
+                                  TRUTH_CSV_HEADER, TRUTH_DTYPE, TRUTH_REQUIRED, CsvFormatError, GroundTruthCsvWriter,
+                                  TrackCsvWriter, TruthCsvWriter, read_tracks_csv, read_truth_csv, tracks_array,
+                                  write_tracks_csv, write_truth_csv)
 
 __all__ = ["FormatError", "SkippedData", "EventReader", "EventWriter", "READ_EXTENSIONS", "WRITE_EXTENSIONS",
-           "iter_events", "read_events", "write_events", "open_writer"]
+           "iter_events", "read_events", "write_events", "open_writer",
+           # the tracks and truth CSVs (arena.formats.tables)
+           "CsvFormatError", "TRACK_CSV_HEADER", "TRACK_REQUIRED", "TRACK_DTYPE", "TrackCsvWriter", "tracks_array",
+           "write_tracks_csv", "read_tracks_csv", "TRUTH_CSV_HEADER", "GROUNDTRUTH_CSV_HEADER", "TRUTH_REQUIRED",
+           "TRUTH_DTYPE", "TruthCsvWriter", "write_truth_csv", "GroundTruthCsvWriter", "read_truth_csv"]
 
-_READERS = {".raw": RawReader, ".dat": DatReader, ".aedat4": Aedat4Reader, ".csv": CsvReader,
-            ".npy": NumpyReader, ".npz": NumpyReader}
-_WRITERS = {".raw": RawWriter, ".dat": DatWriter, ".aedat4": Aedat4Writer, ".csv": CsvWriter,
-            ".npy": NumpyWriter, ".npz": NumpyWriter}
+#: the event format classes and their modules, imported when first used: their numba kernels load
+#: numba (~0.5 s), which a command that only reads a tracks or truth CSV (arena.formats.tables) does
+#: not need; ``from arena.formats import RawReader`` still works (module ``__getattr__``)
+_CLASSES = {"Aedat4Reader": "aedat4", "Aedat4Writer": "aedat4", "CsvReader": "csvfile", "CsvWriter": "csvfile",
+            "DatReader": "dat", "DatWriter": "dat", "NumpyReader": "numpy_files", "NumpyWriter": "numpy_files",
+            "RawReader": "raw", "RawWriter": "raw"}
+_READERS = {".raw": "RawReader", ".dat": "DatReader", ".aedat4": "Aedat4Reader", ".csv": "CsvReader",
+            ".npy": "NumpyReader", ".npz": "NumpyReader"}
+_WRITERS = {".raw": "RawWriter", ".dat": "DatWriter", ".aedat4": "Aedat4Writer", ".csv": "CsvWriter",
+            ".npy": "NumpyWriter", ".npz": "NumpyWriter"}
 READ_EXTENSIONS = tuple(_READERS)
 WRITE_EXTENSIONS = tuple(_WRITERS)
 
@@ -40,7 +54,14 @@ def _ext(path: str | Path, table: dict, verb: str) -> type:
     if ext not in table:
         raise FormatError(f"cannot {verb} {str(path)!r}: unknown extension {ext or '(none)'!r}; "
                           f"known: {', '.join(table)}")
-    return table[ext]
+    return __getattr__(table[ext])
+
+
+def __getattr__(name: str):
+    """The event format classes (``RawReader``, ``CsvWriter``, ...), imported on first use."""
+    if name not in _CLASSES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"arena.formats.{_CLASSES[name]}"), name)
 
 
 def iter_events(path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS, **opts) -> EventReader:

@@ -10,7 +10,7 @@ import json
 import numpy as np
 
 from demo.cli import _finish
-from groundtruth.metrics import TRACK_DTYPE, write_tracks_csv
+from arena.formats.tables import TRACK_DTYPE, write_tracks_csv
 
 ARGS = argparse.Namespace(robots=2, mission="mixed", power=1.0, lighting="full", duration=5.0, seed=0,
                           tracker="fleet", control="closed", view_port=8080)

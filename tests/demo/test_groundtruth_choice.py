@@ -69,7 +69,7 @@ def test_verdict_needs_a_webcam_ground_truth_that_found_the_robots():
 
 @pytest.mark.parametrize("markers", [False, True])
 def test_results_and_report_say_which_ground_truth(tmp_path, capsys, markers):
-    from groundtruth.metrics import TRACK_DTYPE, write_tracks_csv
+    from arena.formats.tables import TRACK_DTYPE, write_tracks_csv
 
     run = tmp_path / "demo-x"
     (run / "telemetry").mkdir(parents=True)

@@ -3,7 +3,8 @@
 import numpy as np
 
 from demo.report import mission_rows, realtime_rows, webcam_as_tracks
-from groundtruth.metrics import TRUTH_DTYPE, evaluate
+from arena.formats.tables import TRUTH_DTYPE
+from groundtruth.metrics import evaluate
 
 
 def test_webcam_rows_become_one_track_per_robot_and_unseen_rows_are_left_out():
@@ -67,7 +68,7 @@ def test_replay_hint_needs_a_recording_and_makes_the_replay_the_router(tmp_path)
 
 
 def _scores_on(truth_rows: int):
-    from groundtruth.metrics import TRACK_DTYPE
+    from arena.formats.tables import TRACK_DTYPE
 
     truth = np.zeros(truth_rows, TRUTH_DTYPE)
     truth["t_us"] = np.arange(truth_rows) * 10_000

@@ -192,7 +192,8 @@ def test_pipeline_across_hosts_with_faults(deployment, tmp_path):
     # MOTA of the tracker's output (its CSV, camera clock) against the simulator's truth, clean phase
     # vs impaired phase; host times map to the simulator's clock through the bridge's telemetry log
     # (robot_time_us beside host_time_ns)
-    from groundtruth.metrics import evaluate, read_tracks_csv, read_truth_csv
+    from arena.formats.tables import read_tracks_csv, read_truth_csv
+    from groundtruth.metrics import evaluate
 
     tele = [r for f in sorted(bridge_logs.glob("*.csv")) for r in csv.DictReader(open(f)) if r["event"] == "sample"]
     offset_us = float(np.median([int(r["robot_time_us"]) - int(r["host_time_ns"]) / 1e3 for r in tele]))

@@ -9,9 +9,8 @@ import sys
 import numpy as np
 import pytest
 
-from groundtruth.metrics import (
-    CsvFormatError, TRACK_DTYPE, TRUTH_DTYPE, read_tracks_csv, read_truth_csv, write_tracks_csv,
-    write_truth_csv,
+from arena.formats.tables import (
+    TRACK_DTYPE, TRUTH_DTYPE, CsvFormatError, read_tracks_csv, read_truth_csv, write_tracks_csv, write_truth_csv,
 )
 
 TRACK_HEADER = "t_us,track_id,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps,u_px,v_px,state,n_events"
@@ -266,7 +265,8 @@ def test_eval_on_the_host_clock_lines_tracks_up_with_host_stamped_truth(files, t
     tp, gp = files
     host0_us = 1_700_000_000_000_000
     lines = tp.read_text().splitlines()
-    rows = [lines[0] + ",host_ns"] + [ln + f",{(int(ln.split(',')[0]) + host0_us) * 1000 + 789}" for ln in lines[1:]]
+    assert lines[0].endswith(",host_ns") and all(ln.endswith(",") for ln in lines[1:])   # written without host times
+    rows = [lines[0]] + [ln[:-1] + f",{(int(ln.split(',')[0]) + host0_us) * 1000 + 789}" for ln in lines[1:]]
     tp.write_text("\n".join(rows) + "\n")
     truth = read_truth_csv(gp)
     truth["t_us"] += host0_us
@@ -290,11 +290,11 @@ def test_host_clock_rows_out_of_range_or_missing_are_named(files, tmp_path):
     tp, gp = files
     lines = tp.read_text().splitlines()
     huge = tmp_path / "huge.csv"
-    huge.write_text("\n".join([lines[0] + ",host_ns"] + [ln + ",9" * 1 + "9" * 40 for ln in lines[1:]]) + "\n")
+    huge.write_text("\n".join([lines[0]] + [ln[:-1] + ",9" * 1 + "9" * 40 for ln in lines[1:]]) + "\n")
     r = arena("eval", "--tracks", huge, "--truth", gp, "--track-clock", "host")
     assert r.returncode == 2 and "host_ns" in r.stderr and "Traceback" not in r.stderr, r.stderr
     mixed = tmp_path / "mixed.csv"
-    mixed.write_text("\n".join([lines[0] + ",host_ns"] + [ln + ("," + str(int(ln.split(",")[0]) * 1000) if k % 2 else ",")
+    mixed.write_text("\n".join([lines[0]] + [ln[:-1] + ("," + str(int(ln.split(",")[0]) * 1000) if k % 2 else ",")
                                                           for k, ln in enumerate(lines[1:])]) + "\n")
     r = arena("eval", "--tracks", mixed, "--truth", gp, "--track-clock", "host")
     assert "200 of 400 rows; 200 without a host_ns" in r.stdout, r.stdout + r.stderr

@@ -8,9 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from groundtruth.metrics import (
-    TRACK_DTYPE, TRUTH_DTYPE, a_ratio, align, evaluate, n_avg_clusters,
-)
+from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE
+from groundtruth.metrics import a_ratio, align, evaluate, n_avg_clusters
 
 FRAME_US = 10_000
 
@@ -329,7 +328,7 @@ def test_no_ground_truth_measures_nothing(case):
 def test_a_negative_host_ns_is_a_format_error_naming_its_line(tmp_path):
     """An empty host_ns is absent (the row is left out on the host clock); a negative one is a
     broken value and names its line, not silently taken for absent (issue 20)."""
-    from groundtruth.metrics import CsvFormatError, read_tracks_csv
+    from arena.formats.tables import CsvFormatError, read_tracks_csv
 
     p = tmp_path / "t.csv"
     p.write_text("t_us,track_id,x_m,y_m,host_ns\n"

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE
+from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE
 from groundtruth.mocap import (MissingRosbags, MocapError, Transform2D, align_truth, correlate_speeds,
                                fit_transform, read_pose_bag, read_pose_csv, topic_body_name)
 

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from groundtruth.homography import homography_from_calibration
-from groundtruth.rgb import (CSV_FIELDS, DetectionWriter, FrameSource, HsvDetector, HsvRange,
+from arena.formats.tables import GROUNDTRUTH_CSV_HEADER, GroundTruthCsvWriter
+from groundtruth.rgb import (FrameSource, HsvDetector, HsvRange,
                              MarkerDetector, annotate, hsv_range_from_rgb, sample_hsv_range)
 from simulator.webcam import WebcamModel, WebcamServer
 from simulator.world import RobotSpec, World
@@ -215,10 +216,10 @@ def test_csv_writer_and_annotation(tmp_path):
     h = homography_from_calibration(m.calibration)
     frame = jpeg(m.render())
     dets = MarkerDetector({i: f"r{i}" for i in range(4)}, h).detect(frame, 123)
-    with DetectionWriter(tmp_path / "gt.csv") as out:
+    with GroundTruthCsvWriter(tmp_path / "gt.csv") as out:
         out.write(dets)
     rows = list(csv.DictReader(open(tmp_path / "gt.csv")))
-    assert tuple(rows[0]) == CSV_FIELDS and len(rows) == 4
+    assert tuple(rows[0]) == GROUNDTRUTH_CSV_HEADER and len(rows) == 4
     r0 = next(r for r in rows if r["robot"] == "r0")
     assert float(r0["x_m"]) == pytest.approx(w.pose(0)[0], abs=0.005)
     assert r0["detector"] == "aruco" and r0["t_us"] == "123"

@@ -19,7 +19,7 @@ from rosbags.rosbag2 import Reader  # noqa: E402
 from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from arena.messages import Track  # noqa: E402
-from groundtruth.metrics import TRUTH_DTYPE, read_tracks_csv, write_truth_csv  # noqa: E402
+from arena.formats.tables import TRUTH_DTYPE, TrackCsvWriter, read_tracks_csv, write_truth_csv  # noqa: E402
 from recorder.mcapio import RunWriter  # noqa: E402
 from ros2.bag import ExportError, export_run  # noqa: E402
 from ros2.cdr import Serializer  # noqa: E402
@@ -28,7 +28,6 @@ from ros2.convert import (bridge_key, entity_name, quaternion_from_yaw, rmw_zeno
                           yaw_from_quaternion)
 from tests.conftest import arena_cmd  # noqa: E402
 from tracker.objects import TrackedRobot  # noqa: E402
-from tracker.pipeline import TrackCsvWriter  # noqa: E402
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 

@@ -11,7 +11,8 @@ import pytest
 
 from simulator.camera import apply_homography
 from simulator.dvs import DvsParams
-from simulator.recording import load_recording, save_recording, write_events, write_truth_csv
+from arena.formats.tables import write_truth_csv
+from simulator.recording import load_recording, save_recording, write_events
 from simulator.scenarios import Scenario, generate
 
 SMALL = dict(width=320, height=240)

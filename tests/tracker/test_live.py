@@ -103,7 +103,8 @@ def test_simulator_camera_edge_and_tracker_end_to_end(router, tmp_path):
     """The simulator's TCP camera -> `arena edge` -> `arena track` -> a subscriber, all real."""
     import numpy as np
 
-    from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+    from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE
+    from groundtruth.metrics import evaluate
     from simulator.evt3 import CameraServer, canonical_order
     from simulator.scenarios import Scenario, generate
 
@@ -169,7 +170,8 @@ def test_tracker_sigkilled_and_restarted_brings_back_its_track_ids(router, tmp_p
 
     import numpy as np
 
-    from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+    from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE
+    from groundtruth.metrics import evaluate
     from simulator.evt3 import CameraServer, canonical_order
     from simulator.scenarios import Scenario, generate
 

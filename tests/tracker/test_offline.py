@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from arena.formats import write_events
-from groundtruth.metrics import TRUTH_DTYPE, evaluate, read_tracks_csv
+from arena.formats.tables import TRUTH_DTYPE, read_tracks_csv
+from groundtruth.metrics import evaluate
 from tests.conftest import arena_cmd
 
 HEADER = ["t_us", "track_id", "robot", "x_m", "y_m", "yaw_rad", "vx_mps", "vy_mps", "u_px", "v_px", "state",

@@ -45,7 +45,8 @@ def _window(ev, k: int, t0: int) -> bytes:
 
 
 def test_run_tracks_with_the_objects_it_is_given(router, tmp_path):
-    from tracker.pipeline import Pipeline, TrackCsvWriter
+    from arena.formats.tables import TrackCsvWriter
+    from tracker.pipeline import Pipeline
     from tracker.service import run
 
     cal = Calibration.from_dict(calibration_dict())

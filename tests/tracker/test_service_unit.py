@@ -168,7 +168,7 @@ def test_inbox_keeps_the_newest_counts_what_it_dropped_and_wakes_the_worker():
 def test_tracks_carry_the_host_capture_time_of_windows_that_know_it():
     import io
 
-    from tracker.pipeline import TrackCsvWriter
+    from arena.formats.tables import TrackCsvWriter
 
     rng = np.random.default_rng(9)
     ev = window(rng, [line_pose(200, 200, 100.0, 0.0)], 0, 400_000)
