@@ -50,9 +50,6 @@ from typing import Iterable, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-# the arrays evaluate() scores; defined with their CSVs in arena.formats.tables. Re-exported only for
-# tests/demo/test_scorer.py (being written alongside): import them from arena.formats.tables
-from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE  # noqa: F401
 from arena.messages import TENTATIVE
 
 HOTA_ALPHAS = np.arange(0.05, 0.99, 0.05)

@@ -202,7 +202,8 @@ def run(args) -> int:
     from simulator.camera import CeilingCamera
     from simulator.dvs import DvsParams
     from simulator.evt3 import CameraServer, stream_header
-    from simulator.recording import RawWriter, TruthCsvWriter
+    from arena.formats.tables import TruthCsvWriter
+    from simulator.recording import RawWriter
     from simulator.simulation import Simulation, warm_up
     from simulator.world import World
 

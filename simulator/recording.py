@@ -7,7 +7,7 @@
   ``calibration`` (JSON string), ``width``, ``height``, ``homography``.
 
 The truth CSV (``t_us,robot,x_m,y_m,yaw_rad,vx_mps,vy_mps`` with ``robot`` the robot name) is
-:class:`arena.formats.tables.TruthCsvWriter` (imported here for ``arena sim --truth-csv``).
+:class:`arena.formats.tables.TruthCsvWriter` (``arena sim --truth-csv``).
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from arena.events import as_events
-from arena.formats.tables import TruthCsvWriter  # noqa: F401 - simulator.cli writes truth.csv with it
 from simulator.evt3 import Evt3Encoder
 
 EVENT_FORMATS = (".raw", ".csv", ".npz")

@@ -14,7 +14,7 @@ Modules, one concern each (pure algorithms unless said otherwise):
   tentative/confirmed/coasting life cycle, fleet-size cap.
 - :mod:`tracker.calibration` — ``Calibration``: pixel <-> arena homography, JSON files.
 - :mod:`tracker.pipeline` — ``Pipeline``: slices -> window -> detections -> tracks (arena m);
-  ``iter_slices``; ``TrackCsvWriter``.
+  ``iter_slices`` (the tracks CSV it is written to: :mod:`arena.formats.tables`).
 - :mod:`tracker.service` (Zenoh I/O) and :mod:`tracker.cli` (``arena track``, ``arena calibrate``).
 
 Typical use::

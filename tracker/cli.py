@@ -188,7 +188,8 @@ def run_live(args) -> int:
     from arena.service import stop_on_signals
     from arena.session import load_lab_from_args
     from tracker.calibration import CalibrationError, camera_calibration
-    from tracker.pipeline import Pipeline, TrackCsvWriter, warm_up
+    from arena.formats.tables import TrackCsvWriter
+    from tracker.pipeline import Pipeline, warm_up
     from tracker.service import default_state_path, run
 
     log = logging.getLogger("tracker")
@@ -255,7 +256,8 @@ def run_offline(args, lab=None) -> int:
     from arena.formats import FormatError, iter_events
     from arena.slicing import Slicer
     from tracker.calibration import CalibrationError
-    from tracker.pipeline import Pipeline, TrackCsvWriter, iter_slices
+    from arena.formats.tables import TrackCsvWriter
+    from tracker.pipeline import Pipeline, iter_slices
 
     if not args.tracks_out:
         raise fail("arena track: --tracks-out CSV is required with --input")

@@ -17,9 +17,6 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-# the tracks CSV is a contract of arena/ (arena.formats.tables); re-exported here for tracker.cli and
-# tracker.service, which write it, and the documented ``tracker.pipeline.TrackCsvWriter``
-from arena.formats.tables import TRACK_CSV_HEADER, TrackCsvWriter
 from arena.slicing import Slicer
 from tracker.accumulate import PixelWindow
 from tracker.calibration import DEFAULT_ROBOT_HEIGHT_M, FALLBACK_CAMERA_HEIGHT_M, Calibration
@@ -28,7 +25,7 @@ from tracker.fleet import FleetConfig, FleetTracker
 from tracker.idtrack import IDTrack
 from tracker.objects import Observation, TrackedRobot
 
-__all__ = ["Pipeline", "warm_up", "iter_slices", "TRACK_CSV_HEADER", "TrackCsvWriter", "TRACKERS", "DETECTORS",
+__all__ = ["Pipeline", "warm_up", "iter_slices", "TRACKERS", "DETECTORS",
            "PAPER_SIGMA_PX"]
 
 TRACKERS = ("fleet", "idtrack")

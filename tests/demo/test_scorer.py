@@ -10,7 +10,8 @@ import pytest
 
 from arena.messages import GroundTruthPose, Track
 from demo.scorer import LiveScorer, format_rows
-from groundtruth.metrics import TRACK_DTYPE, TRUTH_DTYPE, evaluate
+from arena.formats.tables import TRACK_DTYPE, TRUTH_DTYPE
+from groundtruth.metrics import evaluate
 
 HOST0_NS = 1_700_000_000_000_000_000  # host wall clock (ns) at sensor time 0
 T0_US = 1_000_000  # sensor clock of the first message
