@@ -265,6 +265,55 @@ class PoseEstimator:
         return "odometry"
 
 
+class TrackWatch:
+    """Whether a closed loop still has its robot's track, or runs on odometry alone (pure).
+
+    Call :meth:`update` on every control step with the host time, the host time of the newest
+    track pose fused (``PoseEstimator.last_track_t``, None if none yet) and whether the robot is
+    commanded to move. While it stands, no track is expected (a standing robot gives an event
+    camera no events), so the clock starts when it moves: moving for more than ``lost_s`` with no
+    track since is a *fallback* to odometry (counted in ``fallbacks``, timed in ``odometry_s``);
+    a track coming back ends it. :meth:`update` returns ``"lost"`` or ``"regained"`` when the
+    state changes, else None.
+    """
+
+    def __init__(self, lost_s: float = 0.5):
+        self.lost_s = lost_s
+        self.on_odometry = False
+        self.fallbacks = 0
+        self.odometry_s = 0.0
+        self._since: float | None = None      # when the current fallback began
+        self._still_t: float | None = None    # last time the robot was commanded to stand
+
+    def update(self, now: float, last_track_t: float | None, moving: bool) -> str | None:
+        if not moving:
+            self._still_t = now
+        ref = max(t for t in (last_track_t, self._still_t) if t is not None) \
+            if (last_track_t is not None or self._still_t is not None) else None
+        if ref is None:
+            self._still_t = ref = now
+        lost = moving and now - ref > self.lost_s
+        if lost and not self.on_odometry:
+            self.on_odometry, self._since = True, now
+            self.fallbacks += 1
+            return "lost"
+        fresh = last_track_t is not None and now - last_track_t <= self.lost_s
+        if self.on_odometry and fresh:
+            self.on_odometry = False
+            self.odometry_s += now - self._since
+            self._since = None
+            return "regained"
+        return None
+
+    def odometry_time(self, now: float) -> float:
+        """Seconds spent on odometry alone so far (the running fallback included)."""
+        return self.odometry_s + (now - self._since if self._since is not None else 0.0)
+
+    def as_dict(self, now: float) -> dict:
+        return {"odometry_fallbacks": self.fallbacks, "odometry_only_s": round(self.odometry_time(now), 3),
+                "on_odometry_at_end": self.on_odometry}
+
+
 # --------------------------------------------------------------------------- mission runner
 
 

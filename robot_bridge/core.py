@@ -30,7 +30,7 @@ from arena import robot_protocol as P
 from arena.keys import ALL_ROBOTS
 from arena.messages import MissionCommand, Telemetry, Track
 
-from .control import MissionRunner, PoseEstimator, compose, inverse, path_error
+from .control import MissionRunner, PoseEstimator, TrackWatch, compose, inverse, path_error
 from .link import LINK_TIMEOUT_S, LinkDown, RobotLink
 from .logs import MissionLog, Sample
 from .missions import MissionError, MissionLimits, build_mission, check_mission, mission_speed
@@ -61,6 +61,9 @@ class BridgeOptions:
         estop_repeats: STOP frames sent on an e-stop.
         link_timeout_s: a robot's link is down after this long without a good frame from it, s
             (``--link-timeout``, lab ``link_timeout_s``; see ``robot_bridge.link``).
+        track_lost_s: a closed loop whose robot moves this long without a track falls back to
+            odometry, and says so (a warning, a ``odometry_fallback`` row in the mission log,
+            ``fusion.odometry_fallbacks`` / ``odometry_only_s`` in the manifest), s.
     """
 
     arena_size_m: tuple[float, float] = (1.83, 1.83)
@@ -73,6 +76,7 @@ class BridgeOptions:
     baudrate: int = 57600
     estop_repeats: int = 3
     link_timeout_s: float = LINK_TIMEOUT_S
+    track_lost_s: float = 0.5
     max_log_bytes: int = 50 * 1024 * 1024
 
 
@@ -122,6 +126,9 @@ class RobotHandle:
         self.odometry = Odometry(self.geometry)
         self.estimator = PoseEstimator(stale_s=options.track_stale_s, delay_s=options.track_delay_s)
         self.runner: MissionRunner | None = None
+        self.track_watch: TrackWatch | None = None   # the running closed-loop mission's
+        #: closed-loop missions that fell back to odometry (lost their track), since the bridge started
+        self.odometry_fallbacks = 0
         self.mission_log: MissionLog | None = None
         self.mission_id: str | None = None
         self.start_at_ns: int | None = None
@@ -293,6 +300,7 @@ class RobotHandle:
                 self.link.allow_motors()
             mission_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{cmd.mission}"
             self.runner = runner
+            self.track_watch = TrackWatch(self.opt.track_lost_s) if cmd.control == "closed" else None
             self.mission_id = mission_id
             self.start_at_ns = cmd.start_ns
             self._trace_odo, self._trace_track = [], []
@@ -434,6 +442,9 @@ class RobotHandle:
         est = self.estimator
         res["fusion"] = {"tracks_used": est.tracks_used, "tracks_rejected": est.tracks_rejected,
                          "heading_relocks": est.heading_relocks}
+        if self.track_watch is not None:
+            res["fusion"].update(self.track_watch.as_dict(time.time_ns() / 1e9))
+            self.track_watch = None
         if self.mission_log is not None:
             self.mission_log.event(time.time_ns(), status.split(":")[0].replace(" ", "_"), self.runner.phase)
             self.mission_log.close(status, **res)
@@ -510,6 +521,26 @@ class RobotHandle:
             self.publish(self.name, msg)
             self.published += 1
 
+    def _watch_track(self, now_ns: int, out) -> None:
+        """Closed loop: say so when the robot's track is lost and it runs on odometry (lock held)."""
+        watch = self.track_watch
+        moving = out.target_left_mps != 0.0 or out.target_right_mps != 0.0
+        change = watch.update(now_ns / 1e9, self.estimator.last_track_t, moving)
+        if change == "lost":
+            self.odometry_fallbacks += 1
+            self.on_error(f"robot {self.name}: no track of it for {watch.lost_s:g} s while it drives: closed loop "
+                          f"on odometry alone (mission {self.mission_id}, {self.runner.phase})")
+        elif change == "regained":
+            log.info("robot %s: track back after %.2f s on odometry", self.name, watch.odometry_s)
+        if change is not None and self.mission_log is not None:
+            self.mission_log.event(now_ns, "odometry_fallback" if change == "lost" else "track_regained",
+                                   self.runner.phase)
+
+    @property
+    def on_odometry(self) -> bool:
+        """A closed-loop mission runs on odometry alone now (its track lost)."""
+        return self.track_watch is not None and self.track_watch.on_odometry
+
     def _control(self, tel: P.Telemetry, now_ns: int, t_us: int, gyro_z: float) -> str:
         """One control step of the running mission (lock held); returns the phase.
         ``gyro_z``: the telemetry's yaw rate, rad/s."""
@@ -540,6 +571,8 @@ class RobotHandle:
             self._stop_motors(self.opt.estop_repeats)
             return "crashed"
         self._trace_odo.append(compose(self._odo_to_mission, self.odometry.pose)[:2])
+        if self.track_watch is not None and not out.done:
+            self._watch_track(now_ns, out)
         if out.done:
             self._end_mission("finished")
             self._stop_motors()

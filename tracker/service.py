@@ -7,9 +7,18 @@
   :class:`tracker.pipeline.Pipeline` in time order. A slice that does not decode, does not
   fit the calibrated sensor or is not newer than the last one is counted and skipped.
 - Every track update is published on ``arena/robots/<id>`` (the robot's name when known,
-  else the track number; names come from ``arena/groundtruth/<robot>`` poses, e.g. the
-  webcam's markers, that keep falling on the same track) as an :class:`arena.messages.Track`; ``get("arena/robots/*")``
+  else the track number) as an :class:`arena.messages.Track`; ``get("arena/robots/*")``
   answers with the current fleet; tracks can also be logged to CSV.
+- Names (which track is which robot) come from two sources, both through the fleet tracker's
+  ``set_robot_name``: the robots' own telemetry (``arena/telemetry/<robot>``: tread speeds and
+  gyro matched to each track's motion over a few seconds, time-aligned on the robot's clock;
+  :mod:`tracker.naming`), which every lab has, and ``arena/groundtruth/<robot>`` poses (e.g. the
+  webcam's markers) that keep falling on the same track, each compared with the track's pose *at
+  the pose's capture stamp* (interpolated in the track's recent history), not with the latest
+  track: a webcam that lags on a loaded host still names the right track. Counted in
+  ``names_from_telemetry`` and ``names_from_groundtruth`` (a name given or moved to another track);
+  ``telemetry_bad``, ``groundtruth_bad`` (undecodable messages), ``groundtruth_out_of_history``
+  (a pose stamped where no track has history: not used).
 - Presence and once-a-second status through :class:`arena.service.Service`: counters
   ``windows_in``, ``windows_bad``, ``windows_late``, ``events_late`` (events older than their
   window's start: the edge keeps them in the window open when they came), ``windows_missed`` (sequence gaps not
@@ -56,11 +65,13 @@ import numpy as np
 import zenoh
 
 from arena.codec import CodecError, decode
-from arena.keys import ALL_GROUNDTRUTH, ALL_ROBOTS, events_key, robot_key, validate_name
-from arena.messages import EventWindow, GroundTruthPose, MessageError, Track
+from arena.keys import ALL_GROUNDTRUTH, ALL_ROBOTS, ALL_TELEMETRY, events_key, robot_key, validate_name
+from arena.messages import EventWindow, GroundTruthPose, MessageError, Telemetry, Track
 from arena.service import Service
+from tracker.naming import TelemetryNamer
 from tracker.objects import TrackedRobot
-from tracker.pipeline import Pipeline, TrackCsvWriter
+from arena.formats.tables import TrackCsvWriter
+from tracker.pipeline import Pipeline
 
 log = logging.getLogger("tracker")
 
@@ -253,12 +264,18 @@ class LiveTracker:
     NAME_GATE_M = 0.10
     #: ... once it has done so this many times in a row
     NAME_VOTES = 5
+    #: a ground-truth pose stamped further than this from every track's history (ns) is on
+    #: another clock (e.g. a video file's media time): it is matched with the latest tracks
+    GT_OTHER_CLOCK_NS = 10_000_000_000
 
     def __init__(self, pipeline: Pipeline, camera: str, svc=None, make_pipeline=None) -> None:
         self.pipeline = pipeline
         self.make_pipeline = make_pipeline
         self._votes: dict[str, tuple[int, int]] = {}
-        self._pending_names: dict[int, str] = {}
+        self._pending_names: dict[int, str] = {}        # from ground truth (webcam)
+        self._pending_tel_names: dict[int, str] = {}    # from telemetry
+        self.namer = TelemetryNamer()
+        self._namer_now_ns: int | None = None           # host capture time of the newest track fed
         self.camera = camera
         self.unpublished: list[TrackedRobot] = []   # tracks of the last window, if stale: CSV only
         self.sensor_to_host_ns: int | None = None     # of the last window handled (the edge's estimate)
@@ -302,21 +319,38 @@ class LiveTracker:
         else:
             log.warning("%s", msg)
 
-    def observe_groundtruth(self, robot: str, x: float, y: float) -> None:
-        """A ground-truth pose of ``robot`` (arena m, e.g. from the webcam's markers): the
-        nearest current track within ``NAME_GATE_M``, the same one ``NAME_VOTES`` times in a
-        row, gets the robot's name (published on ``arena/robots/<name>`` from then on).
-        Thread-safe; applied by the worker at its next window."""
+    def observe_groundtruth(self, robot: str, x: float, y: float, stamp_us: int | None = None) -> None:
+        """A ground-truth pose of ``robot`` (arena m, e.g. from the webcam's markers) captured at
+        ``stamp_us`` (host clock, µs): the nearest track within ``NAME_GATE_M`` *at that time*
+        (its pose interpolated in its recent history), the same one ``NAME_VOTES`` times in a row,
+        gets the robot's name (published on ``arena/robots/<name>`` from then on). A pose stamped
+        where the tracks have no history is not used (``groundtruth_out_of_history``), unless it is
+        on another clock altogether (:attr:`GT_OTHER_CLOCK_NS` away: matched with the latest
+        tracks); without a stamp, the latest tracks are used. Thread-safe; applied by the worker
+        at its next window."""
         try:
             validate_name(robot, "robot name")
         except ValueError:
             return
         with self.lock:
+            candidates = [m for m in self.fleet.values() if m.state != "tentative"]
+            poses = {m.track_id: (m.x, m.y) for m in candidates}
+            newest = self._namer_now_ns
+            if stamp_us is not None and newest is not None and abs(stamp_us * 1000 - newest) <= self.GT_OTHER_CLOCK_NS:
+                t_ns = int(stamp_us) * 1000
+                poses = {}
+                for m in candidates:
+                    p = self.namer.track_position_at(m.track_id, t_ns)
+                    if p is not None:
+                        poses[m.track_id] = p
+                if not poses:
+                    self._count("groundtruth_out_of_history")
+                    return
             best, best_d = None, self.NAME_GATE_M
-            for msg in self.fleet.values():
-                d = ((msg.x - x) ** 2 + (msg.y - y) ** 2) ** 0.5
-                if d <= best_d and msg.state != "tentative":
-                    best, best_d = msg.track_id, d
+            for tid, (tx, ty) in poses.items():
+                d = ((tx - x) ** 2 + (ty - y) ** 2) ** 0.5
+                if d <= best_d:
+                    best, best_d = tid, d
             if best is None:
                 self._votes.pop(robot, None)
                 return
@@ -325,6 +359,53 @@ class LiveTracker:
             self._votes[robot] = (best, n)
             if n >= self.NAME_VOTES and not any(m.track_id == best and m.robot == robot for m in self.fleet.values()):
                 self._pending_names[best] = robot
+
+    def observe_telemetry(self, msg: Telemetry) -> None:
+        """A telemetry sample of a robot (``arena/telemetry/<robot>``): fed to the
+        :class:`~tracker.naming.TelemetryNamer`. Thread-safe."""
+        try:
+            validate_name(msg.robot, "robot name")
+        except ValueError:
+            return
+        gz = msg.gyro[2] if len(msg.gyro) == 3 else math.nan
+        with self.lock:
+            self.namer.add_telemetry(msg.robot, msg.robot_time_us, msg.host_time_ns, msg.speed_left,
+                                     msg.speed_right, float(gz))
+
+    def _apply_names(self) -> None:
+        """Give tracks the names found since the last window (worker thread)."""
+        with self.lock:
+            pending, self._pending_names = self._pending_names, {}
+            tel, self._pending_tel_names = self._pending_tel_names, {}
+            current = {m.track_id: m.robot for m in self.fleet.values()}
+        namer = getattr(self.pipeline.tracker, "set_robot_name", None)
+        if namer is None:
+            return
+        for source, names in (("names_from_telemetry", tel), ("names_from_groundtruth", pending)):
+            for tid, robot in names.items():
+                if current.get(tid) == robot:
+                    continue
+                if namer(tid, robot):
+                    self._count(source)
+                    log.info("camera %s: track %d is robot %s (from %s)", self.camera, tid, robot,
+                             source.split("_")[-1])
+
+    def _feed_namer(self, out: list, now_ns: int, win_end_us: int) -> None:
+        """Feed this window's tracks to the telemetry namer; evaluate it (every 0.25 s of data)."""
+        with self.lock:
+            newest = None
+            for _, msg, _ in out:
+                if msg.state == "tentative":
+                    continue
+                host = msg.host_ns if msg.host_ns is not None else now_ns - (win_end_us - msg.stamp_us) * 1000
+                self.namer.add_track(msg.track_id, host, msg.x, msg.y, msg.yaw, msg.vx, msg.vy,
+                                     stamp_us=msg.stamp_us)
+                newest = host if newest is None else max(newest, host)
+            if newest is None:
+                return
+            self._namer_now_ns = newest if self._namer_now_ns is None else max(self._namer_now_ns, newest)
+            found = self.namer.update(self._namer_now_ns)
+            self._pending_tel_names.update(found)
 
     def window_end(self, payload: bytes) -> int | None:
         """End (sensor µs) of the window in ``payload`` if it is a valid window of this camera and
@@ -356,12 +437,7 @@ class LiveTracker:
         self.unpublished = []   # tracks of a stale window: for the CSV, not to publish
         if resumed:
             self._rebuild_pending = True
-        with self.lock:
-            pending, self._pending_names = self._pending_names, {}
-        namer = getattr(self.pipeline.tracker, "set_robot_name", None)
-        if namer is not None:
-            for tid, robot in pending.items():
-                namer(tid, robot)
+        self._apply_names()
         try:
             win = EventWindow.decode(payload)
             if win.camera != self.camera:
@@ -459,6 +535,7 @@ class LiveTracker:
             out.append((robot_key(tr.robot or tr.track_id), msg, tr))
         with self.lock:
             self.fleet = {k: m for k, m, _ in out}
+        self._feed_namer(out, now_ns, win.t_end_us)
         if stale:   # processed, logged to the CSV by the worker, not published
             self._count("tracks_stale", len(out))
             self.unpublished = [tr for _, _, tr in out]
@@ -468,7 +545,7 @@ class LiveTracker:
 
 def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: str, stop: threading.Event, *,
         name: str, pipeline: Pipeline | None = None, tracker: str = "fleet", detector: str = "default",
-        queue: int = 100, names_from_groundtruth: bool = True, state_path: Path | None = None,
+        queue: int = 100, names_from_groundtruth: bool = True, names_from_telemetry: bool = True, state_path: Path | None = None,
         state_max_age_s: float = 600.0, writer: TrackCsvWriter | None = None,
         duration_s: float | None = None) -> None:
     """Track ``arena/events/<camera>`` on ``session`` until ``stop`` is set (or ``duration_s``
@@ -478,7 +555,9 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
     Built objects only (``tracker.cli`` turns flags and the lab file into them):
     ``make_pipeline()`` builds a fresh :class:`~tracker.pipeline.Pipeline` (after a restarted
     stream); ``pipeline`` is the first one (default: ``make_pipeline()``); ``tracker`` and
-    ``detector`` are the names of the method, shown by ``arena status``; ``state_path``: the fleet
+    ``detector`` are the names of the method, shown by ``arena status``; ``names_from_telemetry``,
+    ``names_from_groundtruth``: name tracks from ``arena/telemetry/*``, ``arena/groundtruth/*``;
+    ``state_path``: the fleet
     state file read at start and written every second (None: none); ``writer``: a CSV log of
     every track (stale ones too)."""
     pipe = make_pipeline() if pipeline is None else pipeline
@@ -506,11 +585,23 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
             except MessageError:
                 svc.count("groundtruth_bad")
                 return
-            live.observe_groundtruth(gt.robot, gt.x, gt.y)
+            live.observe_groundtruth(gt.robot, gt.x, gt.y, gt.stamp_us)
+
+        def on_telemetry(sample) -> None:
+            try:
+                tel = Telemetry.decode(sample.payload.to_bytes())
+            except MessageError:
+                svc.count("telemetry_bad")
+                return
+            live.observe_telemetry(tel)
 
         queryable = session.declare_queryable(ALL_ROBOTS, on_query)
         gt_sub = (session.declare_subscriber(ALL_GROUNDTRUTH, on_groundtruth)
                   if names_from_groundtruth else None)
+        tel_sub = (session.declare_subscriber(ALL_TELEMETRY, on_telemetry)
+                   if names_from_telemetry else None)
+        svc.count("names_from_telemetry", 0)
+        svc.count("names_from_groundtruth", 0)
         inbox = Inbox(max(1, queue))
         sub = session.declare_subscriber(events_key(camera), lambda sample: inbox.put(sample.payload.to_bytes()))
         log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(camera), tracker, detector)
@@ -565,6 +656,8 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
             queryable.undeclare()
             if gt_sub is not None:
                 gt_sub.undeclare()
+            if tel_sub is not None:
+                tel_sub.undeclare()
             for pub in publishers.values():
                 pub.undeclare()
 

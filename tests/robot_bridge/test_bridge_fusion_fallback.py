@@ -1,0 +1,65 @@
+"""A closed loop that loses its robot's track falls back to odometry and says so (issue 20)."""
+
+from __future__ import annotations
+
+import pytest
+
+from robot_bridge.control import ControlOutput, MissionRunner, TrackWatch
+from robot_bridge.core import BridgeOptions, RobotHandle, RobotSetup
+from robot_bridge.missions import MissionLimits, build_mission
+from robot_bridge.odometry import WheelGeometry
+
+DRIVE = ControlOutput(100, 100, "line", False, 0.2, 0.2)
+STAND = ControlOutput(0, 0, "pause", False, 0.0, 0.0)
+
+
+def test_a_track_missing_for_half_a_second_while_driving_is_a_fallback_until_one_comes_back():
+    w = TrackWatch(lost_s=0.5)
+    t, changes = 100.0, []
+    for k in range(300):                      # 3 s at 100 Hz; tracks every 20 ms with 80 ms latency
+        now = t + k * 0.01
+        track = now - 0.08 if not 1.0 <= k * 0.01 < 2.0 else t + 0.92   # none between 1.0 and 2.0 s
+        c = w.update(now, track, moving=True)
+        if c:
+            changes.append((round(k * 0.01, 2), c))
+    assert [c for _, c in changes] == ["lost", "regained"]
+    assert changes[0][0] == pytest.approx(1.43, abs=0.02)      # the last track (0.92 s) + 0.5 s
+    assert changes[1][0] == pytest.approx(2.0, abs=0.02)
+    assert w.fallbacks == 1 and w.odometry_s == pytest.approx(0.57, abs=0.03)
+
+
+def test_standing_is_no_fallback_and_no_track_at_all_is_one():
+    w = TrackWatch(lost_s=0.5)
+    for k in range(200):                      # stands 2 s without tracks: an event camera sees nothing
+        assert w.update(k * 0.01, None, moving=False) is None
+    assert w.fallbacks == 0
+    out = [w.update(2.0 + k * 0.01, None, moving=True) for k in range(100)]   # drives, never a track
+    assert out.count("lost") == 1 and abs(out.index("lost") - 50) <= 1   # 0.5 s after it started driving
+    assert w.as_dict(3.0) == {"odometry_fallbacks": 1, "odometry_only_s": pytest.approx(0.5, abs=0.02),
+                              "on_odometry_at_end": True}
+
+
+def test_the_mission_manifest_and_the_handle_say_the_closed_loop_fell_back(tmp_path):
+    h = RobotHandle(RobotSetup("r1", "tcp://127.0.0.1:9"), BridgeOptions(log_dir=str(tmp_path)),
+                    on_error=lambda msg: errors.append(msg))
+    errors: list[str] = []
+    mission = build_mission("circle", {"radius_m": 0.2}, (0.9, 0.5, 0.0), 0.2, MissionLimits.for_arena((1.83, 1.83)))
+    with h.lock:
+        h.runner = MissionRunner(mission, WheelGeometry(), mode="closed", estimator=h.estimator, odometry=h.odometry)
+        h.mission_id = "m1"
+        h.track_watch = TrackWatch(h.opt.track_lost_s)
+        t0 = 1_000_000_000_000
+        h._watch_track(t0, STAND)
+        for k in range(1, 80):                # drives 0.8 s, no track of it ever came
+            h._watch_track(t0 + k * 10_000_000, DRIVE)
+        assert h.on_odometry and h.odometry_fallbacks == 1
+        h._end_mission("finished")
+    fusion = h.last_result["fusion"]
+    assert fusion["tracks_used"] == 0 and fusion["odometry_fallbacks"] == 1 and fusion["on_odometry_at_end"]
+    assert len(errors) == 1 and "odometry alone" in errors[0]
+    assert not h.on_odometry                  # the mission ended
+
+
+def test_a_paper_mission_has_no_track_watch(tmp_path):
+    h = RobotHandle(RobotSetup("r1", "tcp://127.0.0.1:9"), BridgeOptions(log_dir=str(tmp_path)))
+    assert h.track_watch is None and not h.on_odometry
