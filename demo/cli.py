@@ -505,6 +505,20 @@ def _start_missions(session, robots: list[str], args) -> None:
             raise RuntimeError(f"the bridge refused the mission for {r}: {getattr(reply, 'error', reply)}")
 
 
+def _odometry_fallbacks(manifests: list[dict]) -> dict | None:
+    """Per closed-loop robot, how often its loop lost its track while driving and fell back to
+    odometry alone, for how long in all, and whether it was so at the end (the manifests'
+    ``fusion``): ``{robot: {"fallbacks", "seconds", "at_end"}}``; None when no manifest says."""
+    out = {}
+    for m in manifests:
+        fusion = m.get("fusion") or {}
+        if m.get("control") == "closed" and "odometry_fallbacks" in fusion:
+            out[str(m.get("robot"))] = {"fallbacks": int(fusion["odometry_fallbacks"]),
+                                        "seconds": float(fusion.get("odometry_only_s") or 0.0),
+                                        "at_end": bool(fusion.get("on_odometry_at_end"))}
+    return out or None
+
+
 def _missions_end_us(telemetry_dir: Path) -> int | None:
     """When the first mission ended (stopped at the end of the demo), on the simulator's clock:
     the emulated robots' clocks are the simulator's, so the host time of the mission's end row
@@ -700,6 +714,9 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
         facts["latency"] = lat
     if wins is not None:
         facts["windows"] = wins
+    fallbacks = _odometry_fallbacks(manifests)
+    if fallbacks is not None:
+        facts["odometry_fallbacks"] = fallbacks
 
     def judge() -> tuple[bool, list[str]]:
         return verdict(exit_codes=codes, killed=killed, died=died, failure=facts.get("failure"),
@@ -762,6 +779,10 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
               f"{wins['tracker_queue_dropped']} from its queue"
               + (f" ({sum(wins['during_missions'].values())} of these lost while the missions ran)"
                  if "during_missions" in wins and _lost(wins) else ""))
+    if fallbacks is not None:
+        print("closed loops on odometry alone (no track for > 0.5 s while driving): "
+              + (", ".join(f"{r} {v['fallbacks']}x, {v['seconds']:.1f} s" + (" (still at the end)" if v["at_end"] else "")
+                           for r, v in fallbacks.items() if v["fallbacks"]) or "none"))
     if "report" in summary:
         print(f"report: {summary['report']}  (scores, real time, missions, webcam ground truth, plots)")
     elif "report_error" in summary:

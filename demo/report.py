@@ -50,19 +50,28 @@ def _cm(d: dict | None, key: str) -> str:
 
 def mission_rows(manifests: list[dict]) -> list[list[str]]:
     """One row per mission manifest (``telemetry/*.json``): robot, mission, status, telemetry
-    rows, frames missing on the link, tracks fused, path error against the robot's own tracks
+    rows, frames missing on the link, tracks fused, how often (and how long) the closed loop
+    drove on odometry alone for want of its track, path error against the robot's own tracks
     and against its odometry (mean / max, cm)."""
     rows = []
     for m in sorted(manifests, key=lambda m: str(m.get("robot"))):
         pt, po = m.get("path_error_tracks"), m.get("path_error_odometry")
         rows.append([str(m.get("robot", "?")), str(m.get("pattern", "?")), str(m.get("status", "?")),
                      str(m.get("rows", "-")), str((m.get("link") or {}).get("missing", "-")),
-                     str((m.get("fusion") or {}).get("tracks_used", "-")),
+                     str((m.get("fusion") or {}).get("tracks_used", "-")), _fallbacks(m.get("fusion") or {}),
                      f"{_cm(pt, 'mean_m')} / {_cm(pt, 'max_m')}", f"{_cm(po, 'mean_m')} / {_cm(po, 'max_m')}"])
     return rows
 
 
-MISSION_HEADERS = ["robot", "mission", "status", "rows", "missing frames", "tracks fused",
+def _fallbacks(fusion: dict) -> str:
+    """``N (S s)``: the closed loop's fallbacks to odometry alone and their total time; ``-`` when
+    the mission did not say (the paper's open-loop control, an older manifest)."""
+    if "odometry_fallbacks" not in fusion:
+        return "-"
+    return f"{fusion['odometry_fallbacks']} ({float(fusion.get('odometry_only_s') or 0):.1f} s)"
+
+
+MISSION_HEADERS = ["robot", "mission", "status", "rows", "missing frames", "tracks fused", "on odometry alone",
                    "path error, tracks (mean / max cm)", "path error, odometry (mean / max cm)"]
 
 

@@ -211,6 +211,9 @@ class Bridge:
             self.svc.gauge(f"{name}.battery_mv", h.battery_mv)
             self.svc.gauge(f"{name}.samples", h.samples)
             self.svc.gauge(f"{name}.published", h.published)
+            # a closed loop driving without its track (on odometry alone), and how often it happened
+            self.svc.gauge(f"{name}.on_odometry", h.on_odometry)
+            self.svc.gauge(f"{name}.odometry_fallbacks", h.odometry_fallbacks)
             res = h.last_result
             if res:
                 self.svc.gauge(f"{name}.last_mission", f"{res['mission_id']}: {res['status']}")

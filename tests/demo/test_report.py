@@ -24,11 +24,24 @@ def test_webcam_rows_become_one_track_per_robot_and_unseen_rows_are_left_out():
 def test_mission_rows_show_path_errors_in_cm_and_a_dash_for_what_a_manifest_lacks():
     rows = mission_rows([
         {"robot": "r2", "pattern": "square", "status": "done", "rows": 10, "link": {"missing": 3},
-         "fusion": {"tracks_used": 7}, "path_error_tracks": {"mean_m": 0.0123, "max_m": 0.05}},
+         "fusion": {"tracks_used": 7, "odometry_fallbacks": 2, "odometry_only_s": 1.26},
+         "path_error_tracks": {"mean_m": 0.0123, "max_m": 0.05}},
         {"robot": "r1"},    # a mission that never started writes little
     ])
-    assert rows == [["r1", "?", "?", "-", "-", "-", "- / -", "- / -"],
-                    ["r2", "square", "done", "10", "3", "7", "1.23 / 5.00", "- / -"]]
+    assert rows == [["r1", "?", "?", "-", "-", "-", "-", "- / -", "- / -"],
+                    ["r2", "square", "done", "10", "3", "7", "2 (1.3 s)", "1.23 / 5.00", "- / -"]]
+
+
+def test_the_demo_summary_says_which_closed_loops_fell_back_to_odometry():
+    from demo.cli import _odometry_fallbacks
+
+    manifests = [{"robot": "a", "control": "closed", "fusion": {"odometry_fallbacks": 1, "odometry_only_s": 0.8,
+                                                                "on_odometry_at_end": True}},
+                 {"robot": "b", "control": "closed", "fusion": {"odometry_fallbacks": 0, "odometry_only_s": 0.0}},
+                 {"robot": "c", "control": "paper", "fusion": {}}]
+    assert _odometry_fallbacks(manifests) == {"a": {"fallbacks": 1, "seconds": 0.8, "at_end": True},
+                                              "b": {"fallbacks": 0, "seconds": 0.0, "at_end": False}}
+    assert _odometry_fallbacks([{"robot": "c", "control": "paper"}]) is None
 
 
 def test_realtime_rows_only_for_what_was_measured():
