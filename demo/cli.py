@@ -525,6 +525,8 @@ def _missions_end_us(telemetry_dir: Path) -> int | None:
     maps through the last telemetry sample before it. None when no mission log says so."""
     import csv
 
+    from robot_bridge.logs import MissionLog
+
     ends = []
     for path in sorted(Path(telemetry_dir).glob("*.csv")):
         last = None
@@ -532,7 +534,7 @@ def _missions_end_us(telemetry_dir: Path) -> int | None:
             for row in csv.DictReader(f):
                 if row["event"] == "sample":
                     last = (int(row["host_time_ns"]), int(row["robot_time_us"]))
-                elif last is not None and row["event"] != "gap":   # the mission's end (or its link's)
+                elif last is not None and row["event"] not in MissionLog.PROGRESS_EVENTS:   # its end (or its link's)
                     ends.append(last[1] + (int(row["host_time_ns"]) - last[0]) // 1000)
                     break
     return min(ends) if ends else None

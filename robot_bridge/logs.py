@@ -137,6 +137,9 @@ class MissionLog:
         self.gap_rows += 1
         self.missing += missing
 
+    #: events a mission goes on after (the others end it: ``link_down``, ``estop``, its status)
+    PROGRESS_EVENTS = ("gap", "odometry_fallback", "track_regained")
+
     def event(self, host_time_ns: int, what: str, phase: str = "") -> None:
         """Record a non-sample event (``link_down``, ``estop``, ``phase`` change...) as a row."""
         self._emit([host_time_ns, "", "", what, 0] + [""] * (len(COLUMNS) - 6) + [phase])

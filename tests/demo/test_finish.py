@@ -103,3 +103,24 @@ def test_event_windows_lost_are_read_from_the_status_in_the_recording(tmp_path):
                               "tracker_queue_dropped": 1}
     assert _windows(path, missions_ns=25)["during_missions"] == {"edge_dropped": 3, "tracker_missed": 1,
                                                                  "tracker_queue_dropped": 1}
+
+
+def test_the_missions_end_is_their_end_row_not_a_fallback_to_odometry(tmp_path):
+    """A closed loop's odometry_fallback / track_regained rows are progress, not the mission's end
+    (the demo scored 68 frames of a 15 s run when it took the first such row for the end)."""
+    from robot_bridge.logs import COLUMNS
+
+    from demo.cli import _missions_end_us
+
+    def row(host_ns, robot_us, event):
+        vals = {c: "" for c in COLUMNS}
+        vals.update(host_time_ns=host_ns, robot_time_us=robot_us, event=event)
+        return ",".join(str(vals[c]) for c in COLUMNS)
+
+    rows = [row(1_000_000_000 + k * 10_000_000, 5_000_000 + k * 10_000, "sample") for k in range(300)]
+    rows.insert(100, row(2_000_000_000, "", "odometry_fallback"))
+    rows.insert(150, row(2_500_000_000, "", "track_regained"))
+    rows.append(row(1_000_000_000 + 300 * 10_000_000, "", "interrupted"))
+    (tmp_path / "r1.csv").write_text(",".join(COLUMNS) + "\n" + "\n".join(rows) + "\n")
+    # the end row, 10 ms after the last sample (robot time 5 000 000 + 299 * 10 000 µs)
+    assert _missions_end_us(tmp_path) == 5_000_000 + 299 * 10_000 + 10_000
