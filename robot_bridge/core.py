@@ -524,7 +524,10 @@ class RobotHandle:
     def _watch_track(self, now_ns: int, out) -> None:
         """Closed loop: say so when the robot's track is lost and it runs on odometry (lock held)."""
         watch = self.track_watch
-        moving = out.target_left_mps != 0.0 or out.target_right_mps != 0.0
+        # a robot being stopped (the bridge closing, a stop for several robots) stands whatever
+        # its mission still asks for: the event camera loses it then, and that is no fallback
+        stopping = self.halting or self.holding or self._gen != self._run_gen
+        moving = (out.target_left_mps != 0.0 or out.target_right_mps != 0.0) and not stopping
         change = watch.update(now_ns / 1e9, self.estimator.last_track_t, moving)
         if change == "lost":
             self.odometry_fallbacks += 1

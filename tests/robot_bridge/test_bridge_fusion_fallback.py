@@ -63,3 +63,20 @@ def test_the_mission_manifest_and_the_handle_say_the_closed_loop_fell_back(tmp_p
 def test_a_paper_mission_has_no_track_watch(tmp_path):
     h = RobotHandle(RobotSetup("r1", "tcp://127.0.0.1:9"), BridgeOptions(log_dir=str(tmp_path)))
     assert h.track_watch is None and not h.on_odometry
+
+
+def test_a_robot_being_stopped_is_no_fallback(tmp_path):
+    """The bridge closing halts the motors before the mission ends: the robot stands, the event
+    camera loses it, and that is not a fallback to odometry (every robot of a demo said
+    "still on odometry at the end" when it was counted)."""
+    h = RobotHandle(RobotSetup("r1", "tcp://127.0.0.1:9"), BridgeOptions(log_dir=str(tmp_path)))
+    mission = build_mission("circle", {"radius_m": 0.2}, (0.9, 0.5, 0.0), 0.2, MissionLimits.for_arena((1.83, 1.83)))
+    with h.lock:
+        h.runner = MissionRunner(mission, WheelGeometry(), mode="closed", estimator=h.estimator, odometry=h.odometry)
+        h.track_watch = TrackWatch(h.opt.track_lost_s)
+        t0 = 1_000_000_000_000
+        h._watch_track(t0, STAND)
+        h.halting = True                      # arena bridge run closing: halt_motors() came first
+        for k in range(1, 100):               # the mission still asks to drive for 1 s, no track comes
+            h._watch_track(t0 + k * 10_000_000, DRIVE)
+        assert not h.on_odometry and h.odometry_fallbacks == 0
