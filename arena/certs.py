@@ -79,6 +79,8 @@ def parse_hosts(text: str) -> list[HostSpec]:
             raise CertError(f"--hosts: {name!r} is not a host name (letters, digits, '.', '-'; at most 63)")
         if name in seen:
             raise CertError(f"--hosts: host {name!r} is given twice")
+        if name.lower() == "ca":
+            raise CertError("--hosts: 'ca' is the lab CA's own file name (ca.pem, ca.key): name the host otherwise")
         seen.add(name)
         spec = HostSpec(name)
         for addr in (a.strip() for a in addrs.split("+") if a.strip()):
@@ -177,6 +179,17 @@ def make_host_cert(out: Path, host: HostSpec, days: int = 825, server_only: bool
     client holding its certificate, since TLS refuses it as a client certificate.
     """
     key, cert = out / f"{host.name}.key", out / f"{host.name}.pem"
+    try:
+        _make_host_cert(out, host, key, cert, days, server_only)
+    except BaseException:   # no half-made host: a later run must not keep an empty or keyless .pem
+        for f in (cert, key):
+            f.unlink(missing_ok=True)
+        raise
+    os.chmod(cert, 0o644)
+    return cert, key
+
+
+def _make_host_cert(out: Path, host: HostSpec, key: Path, cert: Path, days: int, server_only: bool) -> None:
     _openssl_key(key)
     with tempfile.TemporaryDirectory(prefix="arena-certs-") as tmp:
         csr, ext = Path(tmp) / "host.csr", Path(tmp) / "host.ext"
@@ -190,8 +203,6 @@ def make_host_cert(out: Path, host: HostSpec, days: int = 825, server_only: bool
         _openssl("x509", "-req", "-in", str(csr), "-CA", str(out / "ca.pem"), "-CAkey", str(out / "ca.key"),
                  "-set_serial", str(secrets.randbits(63)), "-days", str(days), "-sha256",
                  "-extfile", str(ext), "-out", str(cert))
-    os.chmod(cert, 0o644)
-    return cert, key
 
 
 def make_users(out: Path, users: list[str], force: bool = False) -> dict[str, str]:
@@ -223,11 +234,24 @@ def make_lab_pki(out: Path, hosts: list[HostSpec], users: list[str], days: int =
     written. Hosts named in ``server_only`` get a serverAuth-only certificate."""
     _private_folder(out)
     written: list[Path] = []
-    if force or not (out / "ca.pem").exists() or not (out / "ca.key").exists():
+    have_pem, have_key = (out / "ca.pem").exists(), (out / "ca.key").exists()
+    if have_pem != have_key and not force:
+        have, lacks = ("ca.pem", "ca.key") if have_pem else ("ca.key", "ca.pem")
+        raise CertError(f"{out} has {have} but not {lacks}: a new CA would leave every certificate the old one "
+                        f"signed unverifiable. Copy {lacks} back (ca.key stays on the admin machine: run arena "
+                        f"certs there), or --force to start a new CA (then every host needs a new certificate)")
+    old_certs = {p for p in out.glob("*.pem") if p.name != "ca.pem"}
+    new_ca = force or not have_pem
+    if new_ca:
         written += make_ca(out)
     for host in hosts:
-        if force or not (out / f"{host.name}.pem").exists():
+        cert = out / f"{host.name}.pem"
+        if force or not cert.exists() or cert.stat().st_size == 0 or not (out / f"{host.name}.key").exists():
             written += make_host_cert(out, host, days, server_only=host.name in server_only)
+    stale = sorted(p.name for p in old_certs - set(written)) if new_ca and have_pem else []
+    if stale:
+        print(f"arena certs: warning: {', '.join(stale)} were signed by the CA just replaced and no longer verify: "
+              f"make them again (--hosts with those names, --force)", file=sys.stderr)
     if users:
         make_users(out, users, force)
         written += [out / "users.txt", *(out / f"{u}.env" for u in users)]
@@ -255,7 +279,7 @@ def register(sub) -> None:
     p.add_argument("--users", default=",".join(DEFAULT_USERS), metavar="USER,...",
                    help=f"roles given a password (default {','.join(DEFAULT_USERS)}); empty for none")
     p.add_argument("--days", type=int, default=825, help="host certificate validity in days (default 825)")
-    p.add_argument("--server-only", default="router", metavar="NAME,...",
+    p.add_argument("--server-only", default=None, metavar="NAME,...",
                    help="hosts whose certificate only serves TLS (cannot be presented as a client): the lab's "
                         "router, central in a mesh, which other routers connect to and which connects to none "
                         "(default: router; 'none' for no such host)")
@@ -266,12 +290,19 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     """``arena certs`` entry point; returns the exit code."""
     try:
-        if args.days <= 0:
-            raise CertError("--days must be positive")
+        if not 1 <= args.days <= 36500:
+            raise CertError(f"--days must be 1-36500 (100 years), got {args.days}")
         hosts = parse_hosts(args.hosts)
         users = [u.strip() for u in args.users.split(",") if u.strip()]
         out = Path(args.dir)
-        server_only = [n.strip() for n in args.server_only.split(",") if n.strip() and n.strip() != "none"]
+        if args.server_only is None:   # the default: the lab router, if it is among the hosts
+            server_only = ["router"]
+        else:
+            server_only = [n.strip() for n in args.server_only.split(",") if n.strip() and n.strip() != "none"]
+            unknown = [n for n in server_only if n not in {h.name for h in hosts}]
+            if unknown:
+                raise CertError(f"--server-only: {', '.join(unknown)} not among --hosts "
+                                f"({', '.join(h.name for h in hosts)})")
         written = make_lab_pki(out, hosts, users, args.days, args.force, server_only)
     except (CertError, OSError) as exc:
         print(f"arena certs: {exc}", file=sys.stderr)

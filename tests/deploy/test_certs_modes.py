@@ -112,3 +112,44 @@ def test_a_server_only_certificate_serves_tls_only(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "Client" in subprocess.run(["openssl", "x509", "-in", str(tmp_path / "other" / "router.pem"), "-noout",
                                        "-ext", "extendedKeyUsage"], capture_output=True, text=True).stdout
+
+
+def test_a_ca_certificate_without_its_key_is_not_silently_replaced(tmp_path):
+    """The help says ca.key stays on the admin machine: adding a host where only ca.pem is made a
+    new CA under the old name (rc 0), and every certificate of the lab stopped verifying."""
+    pki = tmp_path / "pki"
+    assert _certs(0o022, str(pki), "--hosts", "router=127.0.0.1", "--users", "").returncode == 0
+    ca = (pki / "ca.pem").read_bytes()
+    (pki / "ca.key").unlink()
+    r = _certs(0o022, str(pki), "--hosts", "laptop=127.0.0.3", "--users", "")
+    assert r.returncode == 2 and "has ca.pem but not ca.key" in r.stderr and "--force" in r.stderr, r.stderr
+    assert (pki / "ca.pem").read_bytes() == ca and not (pki / "laptop.pem").exists()
+
+
+def test_bad_hosts_days_and_server_only_names_are_refused_before_anything_is_written(tmp_path):
+    for args, message in ((["--hosts", "x=1.2.3.4", "--days", "99999999"], "--days must be 1-36500"),
+                          (["--hosts", "ca=1.2.3.4"], "'ca' is the lab CA's own file name"),
+                          (["--hosts", "router,camera", "--server-only", "camer"], "--server-only: camer not among")):
+        out = tmp_path / message[:6].strip("-' ")
+        r = _certs(0o022, str(out), *args, "--users", "")
+        assert r.returncode == 2 and message in r.stderr and "Traceback" not in r.stderr, (args, r.stderr)
+        assert not out.exists() or not any(out.iterdir()), (args, list(out.iterdir()))
+
+
+def test_a_host_certificate_that_failed_leaves_nothing_behind(tmp_path):
+    """openssl refusing a certificate left a 0-byte x.pem, which the next run kept as made."""
+    from arena.certs import CertError, HostSpec, make_lab_pki
+
+    pki = tmp_path / "pki"
+    with pytest.raises(CertError):
+        make_lab_pki(pki, [HostSpec("x")], [], days=99_999_999)   # beyond the year 9999: openssl fails
+    assert not (pki / "x.pem").exists() and not (pki / "x.key").exists()
+    make_lab_pki(pki, [HostSpec("x")], [])                        # the next run makes it
+    assert (pki / "x.pem").stat().st_size > 0
+
+
+def test_forcing_a_new_ca_names_the_certificates_it_leaves_unverifiable(tmp_path):
+    pki = tmp_path / "pki"
+    assert _certs(0o022, str(pki), "--hosts", "router=127.0.0.1,camera", "--users", "").returncode == 0
+    r = _certs(0o022, str(pki), "--hosts", "router=127.0.0.9", "--users", "", "--force")
+    assert r.returncode == 0 and "camera.pem were signed by the CA just replaced" in r.stderr, r.stderr

@@ -67,7 +67,7 @@ def test_certs_make_a_ca_host_certificates_and_passwords(tmp_path):
     (["--hosts", "a=1.1.1.1,a=1.1.1.2"], "given twice"),
     (["--hosts", ","], "no host given"),
     (["--hosts", "a", "--users", "bad:user"], "is not a user name"),
-    (["--hosts", "a", "--days", "0"], "--days must be positive"),
+    (["--hosts", "a", "--days", "0"], "--days must be 1-36500"),
 ])
 def test_certs_bad_input_is_a_clear_error(tmp_path, args, message):
     r = _certs(str(tmp_path / "pki"), *args)
