@@ -20,7 +20,7 @@ from importlib.metadata import entry_points
 from typing import TYPE_CHECKING
 
 from arena import __version__
-from arena.clitools import exit_on_session_error, fail, formatter, session_or_exit
+from arena.clitools import exit_on_session_error, fail, formatter, seconds, session_or_exit
 from arena.session import SessionError, add_zenoh_arguments
 
 # The parser is built for every command (`arena track` too): what only `status` and `watch` use
@@ -146,7 +146,8 @@ def _register_status(sub) -> None:
                "  arena status\n"
                "  arena status --json\n"
                "  arena status -e tcp/198.18.0.1:7447 -m client   # a lab's router from another host")
-    p.add_argument("--wait", type=float, default=1.5, help="seconds to collect status messages (default 1.5)")
+    p.add_argument("--wait", type=seconds(0.0, 600.0, lo_open=False), default=1.5,
+                   help="seconds to collect status messages, 0-600 (default 1.5)")
     p.add_argument("--json", action="store_true", help="machine-readable output (one JSON document)")
     add_zenoh_arguments(p)
     p.set_defaults(func=_run_status)

@@ -12,6 +12,7 @@ imports nothing beyond the standard library at module level; :func:`session_or_e
 from __future__ import annotations
 
 import argparse
+import math
 import contextlib
 import sys
 from collections.abc import Iterator
@@ -70,3 +71,19 @@ def session_or_exit(settings_or_args: argparse.Namespace | ZenohSettings | None,
 
     with exit_on_session_error(prog, code), open_session(settings_or_args, lab=lab, wait_s=wait_s) as session:
         yield session
+
+
+def seconds(lo: float = 0.0, hi: float = 600.0, *, lo_open: bool = True):
+    """An argparse ``type`` for a duration in seconds within ``(lo, hi]`` (``[lo, hi]`` when not
+    ``lo_open``): NaN, infinities and absurd values are a usage error naming the range."""
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and v <= hi):
+            raise argparse.ArgumentTypeError(f"expected seconds in {'(' if lo_open else '['}{lo:g}, {hi:g}], "
+                                             f"got {text!r}")
+        return v
+    return parse
+

@@ -55,13 +55,39 @@ def fit_homography(src, dst) -> np.ndarray:
         sv = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
         if sv[-1] < 1e-6 * max(sv[0], 1e-12):
             raise _degenerate()
+    if not _same_orientation(a, b):
+        raise CalibrationError("the calibration points cross: some pixel points are not in the same order "
+                               "(clockwise or counter-clockwise) as their arena points, which no camera "
+                               "gives; check each PIXEL:ARENA pair (e.g. two corners swapped)")
     H, _ = cv2.findHomography(a, b, 0)
     if H is None or not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-18 or H[2, 2] == 0:
         raise _degenerate()
-    H = _polish(H / H[2, 2], a, b)
+    try:
+        H = _polish(H / H[2, 2], a, b)
+    except np.linalg.LinAlgError:   # crossed or mirrored correspondences: no homography fits them
+        raise _degenerate() from None
     if not np.isfinite(H).all() or abs(np.linalg.det(H)) < 1e-18:
         raise _degenerate()
     return H
+
+
+def _same_orientation(a: np.ndarray, b: np.ndarray, most: int = 30) -> bool:
+    """Whether every triangle of points turns the same way in ``a`` and in ``b`` (all kept, or
+    all mirrored): a camera's homography of the floor does, since every floor point it sees lies
+    on one side of its horizon. Triangles too flat to tell are skipped; at most ``most`` points."""
+    from itertools import combinations
+
+    a, b = a[:most], b[:most]
+    da, db = a - a.mean(0), b - b.mean(0)
+    ea = 1e-9 * float((da ** 2).sum(1).max())
+    eb = 1e-9 * float((db ** 2).sum(1).max())
+    signs = set()
+    for i, j, k in combinations(range(len(a)), 3):
+        sa = (a[j, 0] - a[i, 0]) * (a[k, 1] - a[i, 1]) - (a[j, 1] - a[i, 1]) * (a[k, 0] - a[i, 0])
+        sb = (b[j, 0] - b[i, 0]) * (b[k, 1] - b[i, 1]) - (b[j, 1] - b[i, 1]) * (b[k, 0] - b[i, 0])
+        if abs(sa) > ea and abs(sb) > eb:
+            signs.add(bool(sa > 0) == bool(sb > 0))
+    return len(signs) <= 1
 
 
 def _normaliser(pts: np.ndarray) -> np.ndarray:

@@ -186,8 +186,8 @@ def _usage_error(args) -> str | None:
         return "--robots must be between 1 and 16"
     if not 0.05 <= args.power <= 1.0:
         return "--power must be in (0, 1], e.g. 1.0 or 0.5"
-    if args.duration <= 0:
-        return "--duration must be positive"
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        return f"--duration must be a positive number of seconds, got {args.duration}"
     if not 0 <= args.observer_nice <= 19:
         return "--observer-nice must be in 0..19 (a process may only lower its priority)"
     if not getattr(args, "prepare", False) and not getattr(args, "markers", False):

@@ -13,7 +13,7 @@ import math
 import sys
 import time
 
-from arena.clitools import exit_on_session_error, formatter
+from arena.clitools import exit_on_session_error, formatter, seconds
 from arena.session import add_zenoh_arguments, open_session, resolve_settings
 
 log = logging.getLogger("robot_bridge")
@@ -118,7 +118,8 @@ def register(subparsers) -> None:
 
 
 def _client_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the bridge's reply")
+    p.add_argument("--timeout", type=seconds(0.0, 600.0), default=3.0,
+                   help="seconds to wait for the bridge's reply, up to 600 (default 3)")
     p.add_argument("--operator", default=None, help="who sends the command (recorded in the mission log)")
     add_zenoh_arguments(p)
 

@@ -193,6 +193,14 @@ def _check_args(args) -> None:
             raise fail(f"arena sim: --{name} must be 16..4096 px, got {v}")
     if not (math.isfinite(args.flicker) and args.flicker >= 0):
         raise fail(f"arena sim: --flicker must be a finite frequency >= 0 Hz (0: off), got {args.flicker}")
+    for flag in ("calibration_out", "truth_csv", "record_raw"):   # checked before anything starts
+        path = getattr(args, flag, None)
+        if path:
+            p = Path(path)
+            if p.is_dir():
+                raise fail(f"arena sim: --{flag.replace('_', '-')} {path} is a folder: give a file name")
+            if not p.parent.is_dir():
+                raise fail(f"arena sim: --{flag.replace('_', '-')} {path}: the folder {p.parent} does not exist")
 
 
 def run(args) -> int:

@@ -166,8 +166,15 @@ def _check_geometry(args) -> None:
         raise fail(f"arena track: --chassis-cm must be > 0, got {args.chassis_cm}")
     if not (0 <= args.robot_height_cm < 100):
         raise fail(f"arena track: --robot-height-cm must be in [0, 100), got {args.robot_height_cm}")
-    if args.camera_height_m is not None and not (args.camera_height_m > args.robot_height_cm / 100):
-        raise fail(f"arena track: --camera-height-m must be above the robots, got {args.camera_height_m}")
+    if args.camera_height_m is not None:
+        from arena.config import CAMERA_HEIGHT_RANGE_M
+
+        lo, hi = CAMERA_HEIGHT_RANGE_M
+        if not (lo <= args.camera_height_m <= hi):   # as arena calibrate, the lab file and the calibration
+            raise fail(f"arena track: --camera-height-m must be {lo:g}-{hi:g} m (the lens above the mats), "
+                       f"got {args.camera_height_m}")
+        if not args.camera_height_m > args.robot_height_cm / 100:
+            raise fail(f"arena track: --camera-height-m must be above the robots, got {args.camera_height_m}")
 
 
 def pipeline_options(args) -> dict:
@@ -335,10 +342,11 @@ def _point(text: str) -> tuple[tuple[float, float], tuple[float, float]]:
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(s) for s in text.lower().split("x"))
-        if w <= 0 or h <= 0:
+        if not (0 < w <= 65535 and 0 < h <= 65535):
             raise ValueError
     except ValueError:
-        raise argparse.ArgumentTypeError(f"size is WIDTHxHEIGHT in px, e.g. 640x480; got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"size is WIDTHxHEIGHT in px (1-65535 each), e.g. 640x480; "
+                                         f"got {text!r}") from None
     return w, h
 
 
@@ -476,7 +484,15 @@ def run_calibrate(args) -> int:
     preview = args.preview or str(Path(args.output).with_suffix(".png"))
     if image is None:
         image = np.full((cal.image_size[1], cal.image_size[0]), 255, np.uint8)
-    cv2.imwrite(preview, _preview(cal, image, L))
+    if Path(preview).resolve() == Path(args.output).resolve():
+        raise fail(f"arena calibrate: --preview {preview} is the calibration's own path (-o): give a .png")
+    try:
+        written = cv2.imwrite(preview, _preview(cal, image, L))
+    except cv2.error as exc:      # e.g. a folder, or no image format for its extension
+        raise fail(f"arena calibrate: cannot write the preview {preview}: {str(exc).strip().splitlines()[-1]}") from None
+    if not written:
+        raise fail(f"arena calibrate: cannot write the preview {preview} (does its folder exist? is it a .png?); "
+                   f"the calibration {args.output} is written")
     print(f"wrote {args.output} ({len(cal.pixels)} points, reprojection {1000 * cal.reprojection_error_m():.1f} mm, "
           f"{cal.px_per_m():.1f} px/m at the centre) and {preview}", file=sys.stderr)
     for line in notes:
