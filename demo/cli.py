@@ -606,6 +606,12 @@ def _windows(mcap_path: Path, missions_ns: int | None = None) -> dict | None:
     return out
 
 
+def _unseen(wins: dict) -> int:
+    """Windows the edge published that the tracker's counters do not account for: sent before it
+    subscribed (services start together) or after its last status (they stop one by one)."""
+    return (wins["edge_published"] - wins["tracker_in"] - wins["tracker_missed"] - wins["tracker_queue_dropped"])
+
+
 def _lost(wins: dict) -> int:
     return sum(int(wins.get(k) or 0) for k in ("edge_dropped", "tracker_missed", "tracker_queue_dropped"))
 
@@ -780,7 +786,9 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
               f"the tracker processed {wins['tracker_in']}, found {wins['tracker_missed']} missing and dropped "
               f"{wins['tracker_queue_dropped']} from its queue"
               + (f" ({sum(wins['during_missions'].values())} of these lost while the missions ran)"
-                 if "during_missions" in wins and _lost(wins) else ""))
+                 if "during_missions" in wins and _lost(wins) else "")
+              + (f"; the other {_unseen(wins)} were published before the tracker's first window or after its "
+                 f"last status" if _unseen(wins) > 0 else ""))
     if fallbacks is not None:
         print("closed loops on odometry alone (no track for > 0.5 s while driving): "
               + (", ".join(f"{r} {v['fallbacks']}x, {v['seconds']:.1f} s" + (" (still at the end)" if v["at_end"] else "")
