@@ -363,6 +363,7 @@ def _watch_missions(sup: Supervisor, demo: _Run, alive: _AliveSet, duration: flo
             raise RuntimeError(f"{', '.join(dead)} stopped unexpectedly; see {demo.logs}")
         if demo.first_track_s is None and alive.tracks_seen:
             demo.first_track_s = alive.tracks_seen - demo.t_start
+            alive.stop_watching_tracks()
         stop.wait(0.2)
     demo.interrupted = stop.is_set()
     demo.t_missions = None   # the missions are over: no more live tables while stopping
@@ -429,7 +430,14 @@ class _AliveSet:
         from arena.keys import ALL_ALIVE, ALL_ROBOTS
 
         session.liveliness().declare_subscriber(ALL_ALIVE, self._on_alive, history=True)
-        session.declare_subscriber(ALL_ROBOTS, self._on_track)
+        self._track_sub = session.declare_subscriber(ALL_ROBOTS, self._on_track)
+
+    def stop_watching_tracks(self) -> None:
+        """Undeclare the tracks' subscriber once the first track is noted (it would otherwise take
+        every track of the run: CPU the two cores of a demo machine do not have to spare)."""
+        if self._track_sub is not None:
+            self._track_sub.undeclare()
+            self._track_sub = None
 
     def _on_alive(self, sample) -> None:
         import zenoh
