@@ -21,10 +21,16 @@ __all__ = ["PixelWindow"]
 _REBASE_S = 20.0
 
 
+#: one slot's statistics, side by side: an event touches one record, not four arrays (issue 22:
+#: the events of a slice hit pixels at random, so each array was one more cache miss per event)
+STATS_DTYPE = np.dtype([("count", np.int64), ("on", np.int64), ("st", np.float64), ("st2", np.float64)])
+
+
 @njit(cache=True, nogil=True)
-def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_active, trans, n_trans):
+def _apply(x, y, p, t, sign, t_ref, width, slot, active, stats, n_active, trans, n_trans):
     """Add (sign=+1) or remove (sign=-1) events. Statistics live in slots 0..n_active-1
-    (contiguous); ``slot[pixel]`` is the pixel's slot or -1, ``active[slot]`` its pixel.
+    (contiguous records of :data:`STATS_DTYPE`); ``slot[pixel]`` is the pixel's slot or -1,
+    ``active[slot]`` its pixel.
     When ``trans`` is not empty, each pixel turning active is appended to it as
     ``pixel + 1`` and each turning inactive as ``-(pixel + 1)`` (from ``n_trans`` on).
     Returns ``(n_active, n_trans)``."""
@@ -38,34 +44,38 @@ def _apply(x, y, p, t, sign, t_ref, width, slot, active, count, on, st, st2, n_a
                 j = n_active
                 slot[k] = j
                 active[j] = k
-                count[j] = 0
-                on[j] = 0
-                st[j] = 0.0
-                st2[j] = 0.0
+                r = stats[j]
+                r.count = 0
+                r.on = 0
+                r.st = 0.0
+                r.st2 = 0.0
                 n_active += 1
                 if record:
                     trans[n_trans] = k + 1
                     n_trans += 1
-            count[j] += 1
+            r = stats[j]
+            r.count += 1
             if p[i]:
-                on[j] += 1
-            st[j] += ti
-            st2[j] += ti * ti
+                r.on += 1
+            r.st += ti
+            r.st2 += ti * ti
         else:
-            count[j] -= 1
+            r = stats[j]
+            r.count -= 1
             if p[i]:
-                on[j] -= 1
-            st[j] -= ti
-            st2[j] -= ti * ti
-            if count[j] == 0:
+                r.on -= 1
+            r.st -= ti
+            r.st2 -= ti * ti
+            if r.count == 0:
                 last = n_active - 1
                 kl = active[last]
                 active[j] = kl
                 slot[kl] = j
-                count[j] = count[last]
-                on[j] = on[last]
-                st[j] = st[last]
-                st2[j] = st2[last]
+                rl = stats[last]
+                r.count = rl.count
+                r.on = rl.on
+                r.st = rl.st
+                r.st2 = rl.st2
                 slot[k] = -1
                 n_active -= 1
                 if record:
@@ -79,9 +89,27 @@ def _coords(active, n_active, width):
     u = np.empty(n_active, dtype=np.int64)
     v = np.empty(n_active, dtype=np.int64)
     for j in range(n_active):
-        u[j] = active[j] % width
-        v[j] = active[j] // width
+        y = active[j] // width     # one division (pixels are >= 0)
+        v[j] = y
+        u[j] = active[j] - y * width
     return u, v
+
+
+@njit(cache=True, nogil=True)
+def _gather(stats, slots):
+    """(count, on, sum_t, sum_t2) of the slots ``slots``, in one pass over their records."""
+    n = slots.shape[0]
+    count = np.empty(n, dtype=np.int64)
+    on = np.empty(n, dtype=np.int64)
+    st = np.empty(n, dtype=np.float64)
+    st2 = np.empty(n, dtype=np.float64)
+    for i in range(n):
+        r = stats[slots[i]]
+        count[i] = r.count
+        on[i] = r.on
+        st[i] = r.st
+        st2[i] = r.st2
+    return count, on, st, st2
 
 
 class PixelWindow:
@@ -116,13 +144,12 @@ class PixelWindow:
 
     def _alloc(self, cap: int) -> None:
         old = getattr(self, "_active", None)
-        arrays = [np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64),
-                  np.zeros(cap, dtype=np.float64), np.zeros(cap, dtype=np.float64)]
+        active, stats = np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=STATS_DTYPE)
         if old is not None:
             m = self._n_active
-            for new, cur in zip(arrays, (self._active, self._count, self._on, self._st, self._st2)):
-                new[:m] = cur[:m]
-        self._active, self._count, self._on, self._st, self._st2 = arrays
+            active[:m] = self._active[:m]
+            stats[:m] = self._stats[:m]
+        self._active, self._stats = active, stats
 
     def _check(self, ev: np.ndarray) -> None:
         if ev.size and (int(ev["x"].max()) >= self.width or int(ev["y"].max()) >= self.height):
@@ -143,8 +170,8 @@ class PixelWindow:
                 self._trans = grown
             trans = self._trans
         self._n_active, n_trans = _apply(ev["x"], ev["y"], ev["p"], ev["t"], sign, self.t_ref_us, self.width,
-                                         self._slot, self._active, self._count, self._on, self._st,
-                                         self._st2, self._n_active, trans, self._n_trans)
+                                         self._slot, self._active, self._stats, self._n_active, trans,
+                                         self._n_trans)
         if self._recording:
             self._n_trans = n_trans
         self.n_events += sign * ev.size
@@ -223,7 +250,25 @@ class PixelWindow:
 
     def slot_stats(self, slots: np.ndarray):
         """(count, sum_t, sum_t2) of the active pixels in slots ``slots`` (times in s from ``t_ref_us``)."""
-        return self._count[slots], self._st[slots], self._st2[slots]
+        st = self._stats
+        return st["count"][slots], st["st"][slots], st["st2"][slots]
+
+    def slot_on(self, slots: np.ndarray) -> np.ndarray:
+        """ON-event counts of the active pixels in slots ``slots``."""
+        return self._stats["on"][slots]
+
+    def slot_records(self, slots: np.ndarray):
+        """(count, on_count, sum_t, sum_t2) of the active pixels in slots ``slots`` (int64 slots, each
+        < :attr:`n_active`; times in s from ``t_ref_us``), gathered in one pass."""
+        slots = np.asarray(slots, dtype=np.int64)
+        if slots.size and (int(slots.min()) < 0 or int(slots.max()) >= self._n_active):
+            raise IndexError(f"slots must lie in [0, {self._n_active}), got {int(slots.min())}..{int(slots.max())}")
+        return _gather(self._stats, slots)
+
+    def coords(self, pixels: np.ndarray):
+        """(u, v) of pixels given as ``y * width + x`` (non-negative int64)."""
+        pixels = np.asarray(pixels, dtype=np.int64)
+        return _coords(pixels, pixels.size, self.width)
 
     def events(self) -> np.ndarray:
         """The window's events, concatenated (sorted by t when the slices were)."""
@@ -234,4 +279,5 @@ class PixelWindow:
         """Active pixels: (u, v, count, on_count, sum_t, sum_t2) arrays; times in s from ``t_ref_us``."""
         m = self._n_active
         u, v = _coords(self._active, m, self.width)
-        return u, v, self._count[:m].copy(), self._on[:m].copy(), self._st[:m].copy(), self._st2[:m].copy()
+        st = self._stats[:m]
+        return u, v, st["count"].copy(), st["on"].copy(), st["st"].copy(), st["st2"].copy()

@@ -54,3 +54,31 @@ def test_rebase_keeps_statistics_and_bad_slices_are_refused():
     bad["x"][0] = 700
     with pytest.raises(ValueError, match="outside"):
         pw.push(bad, base + 20_000)
+
+
+def test_slot_reads_are_the_pixels_columns_in_slot_order():
+    """The detector reads the selected pixels' statistics by slot (issue 22: one record per slot,
+    gathered in one pass): the same values and dtypes as :meth:`PixelWindow.pixels`' columns."""
+    rng = np.random.default_rng(3)
+    ev = window(rng, [line_pose(100, 100, 200.0, 50.0), line_pose(400, 300, -150.0, 0.0)], 0, 150_000,
+                noise_per_px_s=0.5)
+    pw = PixelWindow(640, 480, 100_000)
+    for t_end, sl in iter_slices([ev], 10_000, start_us=0):
+        pw.push(sl, t_end)
+    u, v, c, o, s1, s2 = pw.pixels()
+    assert pw.n_active > 1000 and o.sum() > 0
+    slots = rng.permutation(pw.n_active)
+    cnt, st, st2 = pw.slot_stats(slots)
+    on = pw.slot_on(slots)
+    assert [a.dtype for a in (cnt, on, st, st2)] == [np.int64, np.int64, np.float64, np.float64]
+    assert np.array_equal(cnt, c[slots]) and np.array_equal(on, o[slots])
+    assert np.array_equal(st, s1[slots]) and np.array_equal(st2, s2[slots])
+    assert np.array_equal(pw.slot_map[v * 640 + u], np.arange(pw.n_active))
+    got = pw.slot_records(slots)
+    assert [a.dtype for a in got] == [np.int64, np.int64, np.float64, np.float64]
+    for a, ref in zip(got, (c, o, s1, s2)):
+        assert np.array_equal(a, ref[slots])
+    gu, gv = pw.coords(v[slots] * 640 + u[slots])
+    assert np.array_equal(gu, u[slots]) and np.array_equal(gv, v[slots])
+    with pytest.raises(IndexError):
+        pw.slot_records(np.array([pw.n_active]))
