@@ -5,7 +5,7 @@ This process plays the edge (publishes 10 ms EventWindows of a simulated 4-robot
 recording in real time, stamping ``publish_ns``) and the consumer (subscribes to
 ``arena/robots/*``); ``arena track --camera`` runs as its own process, all as clients of
 one router on loopback. Latency = arrival wall time - the window's ``publish_ns`` (one
-host clock). Printed: p50 / p90 / p99 over the windows (targets p50 <= 5 ms, p99 <= 15 ms).
+host clock). Printed: p50 / p90 / p99 over the windows (issue 22 targets on a quiet machine: p50 <= 3 ms, p99 <= 10 ms).
 
     python bench/bench_tracker_latency.py              # ~30 s
     python bench/bench_tracker_latency.py --seconds 5
@@ -117,7 +117,8 @@ def main(argv=None) -> int:
         return 1
     p50, p90, p99 = np.percentile(lat, [50, 90, 99])
     print(f"edge publish -> track arrival via router, 4 robots, {lat.size} windows: "
-          f"p50 {p50:.2f} ms, p90 {p90:.2f} ms, p99 {p99:.2f} ms (targets p50 <= 5, p99 <= 15)")
+          f"p50 {p50:.2f} ms, p90 {p90:.2f} ms, p99 {p99:.2f} ms (targets, quiet machine: p50 <= 3, p99 <= 10); "
+          f"{os.cpu_count()} cores, load average {'/'.join(f'{v:.2f}' for v in os.getloadavg())} at the end")
     return 0
 
 
