@@ -172,23 +172,7 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
             s.gauge("queue_depth", pub.depth())
             s.gauge("subscribed", int(pub.matching))
             s.gauge("source_invalid", source.invalid)
-            for f in pipeline.filters:
-                s.gauge(f"filter_{f.name}_in", f.n_in)
-                s.gauge(f"filter_{f.name}_out", f.n_out)
-                if isinstance(f, HotPixelFilter) and not f.learning:
-                    hot = f.hot_pixels_
-                    s.gauge("hot_pixels", len(hot))
-                    if id(f) not in hot_reported:
-                        hot_reported.add(id(f))
-                        log.info("edge %s: %d hot pixel(s) masked%s%s", camera, len(hot),
-                                 ": " if len(hot) else "", " ".join(f"{x},{y}" for x, y in hot[:20].tolist()))
-                        if hot_save is not None:
-                            try:
-                                f.save(hot_save)
-                                log.info("edge %s: hot pixels saved to %s (use: --hot-pixels %s)", camera,
-                                         hot_save, hot_save)
-                            except OSError as exc:
-                                s.error(f"cannot save the hot pixels to {hot_save}: {exc}")
+            _gauge_filters(s, pipeline, camera, hot_reported, hot_save)
             for attr in ("reconnects", "connected"):
                 if hasattr(source, attr):
                     s.gauge(f"source_{attr}", int(getattr(source, attr)))
@@ -220,3 +204,27 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
                       "cpu_s": time.process_time() - cpu0,
                       "wall_s": time.monotonic() - wall0}
     return result
+
+
+def _gauge_filters(s: Service, pipeline: EdgePipeline, camera: str, hot_reported: set[int],
+                   hot_save: str | Path | None) -> None:
+    """Gauge each filter's events in and out; once a hot-pixel filter has learnt its mask,
+    gauge and log its hot pixels, and write them to ``hot_save`` (if given) for
+    ``--hot-pixels FILE`` next time, once per filter (``hot_reported``: ids of those done)."""
+    for f in pipeline.filters:
+        s.gauge(f"filter_{f.name}_in", f.n_in)
+        s.gauge(f"filter_{f.name}_out", f.n_out)
+        if isinstance(f, HotPixelFilter) and not f.learning:
+            hot = f.hot_pixels_
+            s.gauge("hot_pixels", len(hot))
+            if id(f) not in hot_reported:
+                hot_reported.add(id(f))
+                log.info("edge %s: %d hot pixel(s) masked%s%s", camera, len(hot),
+                         ": " if len(hot) else "", " ".join(f"{x},{y}" for x, y in hot[:20].tolist()))
+                if hot_save is not None:
+                    try:
+                        f.save(hot_save)
+                        log.info("edge %s: hot pixels saved to %s (use: --hot-pixels %s)", camera,
+                                 hot_save, hot_save)
+                    except OSError as exc:
+                        s.error(f"cannot save the hot pixels to {hot_save}: {exc}")

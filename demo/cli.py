@@ -680,7 +680,7 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
             interrupted=False) -> dict:
     """Score the run, judge it (:func:`demo.verdict.verdict`), write the report and
     ``summary.json``, print the results: first whether the run was ok and why not."""
-    from demo.report import OK_TEXT, read_manifests, replay_hint, run_files
+    from demo.report import read_manifests
     from demo.verdict import verdict
 
     facts: dict = {"run_dir": str(run_dir), "exit_codes": codes, "killed": list(killed), "died": dict(died or {}),
@@ -689,9 +689,43 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
         facts["failure"] = failure.strip().splitlines()[0] if failure.strip() else failure
     if interrupted:
         facts["interrupted"] = True
-    tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
     gt_kind, gt_how = GROUND_TRUTH[bool(getattr(args, "markers", False))]
     facts["groundtruth"] = {"method": gt_kind, "how": gt_how}
+    scored, webcam_scores = _score_run(run_dir, facts, gt_kind)
+    manifests = read_manifests(run_dir / "telemetry")
+    health = _run_health(run_dir, manifests, facts)
+
+    def judge() -> tuple[bool, list[str]]:
+        return verdict(exit_codes=codes, killed=killed, died=died, failure=facts.get("failure"),
+                       interrupted=interrupted, manifests=manifests, robots=args.robots,
+                       sim_realtime=health["sim_realtime"], windows=health["windows"],
+                       truth_rows=facts.get("truth_rows"), scores=facts.get("scores"),
+                       score_error=facts.get("score_error"), report_error=facts.get("report_error"),
+                       webcam=facts.get("webcam"), webcam_method=gt_kind)
+
+    ok, problems = judge()
+    summary = {"ok": ok, "problems": problems, **facts}
+    if scored is not None:
+        try:
+            summary["report"] = str(_report(run_dir, args, summary, *scored, manifests, webcam_scores))
+        except Exception as exc:  # noqa: BLE001 - the scores stand without their report
+            summary["report_error"] = facts["report_error"] = f"{type(exc).__name__}: {exc}"
+            summary["ok"], summary["problems"] = judge()
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    _print_verdict_and_scores(summary, gt_kind, gt_how)
+    _print_run_health(summary, first_track_s, health)
+    _print_run_pointers(run_dir, args, summary)
+    return summary
+
+
+def _score_run(run_dir: Path, facts: dict, gt_kind: str):
+    """Score ``tracks.csv`` (and the webcam ground truth) against ``truth.csv``, recording
+    the scores, or why there are none, in ``facts``.
+
+    Only the missions are scored, not the robots parked while the demo stops. A failure
+    is recorded as ``score_error`` rather than raised: the run is judged either way.
+    Returns ``(scores, tracks, truth)`` or None, and the webcam scores or None."""
+    tracks, truth = run_dir / "tracks.csv", run_dir / "truth.csv"
     webcam_scores = None
     scored = None
     if tracks.exists() and truth.exists():
@@ -717,13 +751,22 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
             facts["score_error"] = str(exc) or type(exc).__name__
     else:
         facts["score_error"] = ", ".join(p.name for p in (tracks, truth) if not p.exists()) + " missing"
+    return scored, webcam_scores
+
+
+def _run_health(run_dir: Path, manifests, facts: dict) -> dict:
+    """Read how the run itself went from its logs, recording and telemetry: the
+    simulator's real-time factor, the webcam's heading sources, the edge-to-track
+    latency, the event windows published and lost, the odometry-only fallbacks.
+
+    Each found is recorded in ``facts`` (absent ones are left out); returns them all
+    (None where absent) for the verdict and the printout."""
     rt = _sim_realtime(run_dir / "logs" / "sim.log")
     if rt is not None:
         facts["sim_realtime"] = rt
     headings = _heading_sources(run_dir / "logs" / "groundtruth.log")
     if headings is not None:
         facts["groundtruth"]["headings"] = headings
-    manifests = read_manifests(run_dir / "telemetry")
     lat = _latency(run_dir / "logs" / "scorer.log")
     wins = _windows(run_dir / "arena.mcap", _missions_start_ns(manifests))
     if lat is not None:
@@ -733,23 +776,20 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
     fallbacks = _odometry_fallbacks(manifests)
     if fallbacks is not None:
         facts["odometry_fallbacks"] = fallbacks
+    return {"sim_realtime": rt, "latency": lat, "windows": wins, "odometry_fallbacks": fallbacks}
 
-    def judge() -> tuple[bool, list[str]]:
-        return verdict(exit_codes=codes, killed=killed, died=died, failure=facts.get("failure"),
-                       interrupted=interrupted, manifests=manifests, robots=args.robots, sim_realtime=rt,
-                       windows=wins, truth_rows=facts.get("truth_rows"), scores=facts.get("scores"),
-                       score_error=facts.get("score_error"), report_error=facts.get("report_error"),
-                       webcam=facts.get("webcam"), webcam_method=gt_kind)
 
-    ok, problems = judge()
-    summary = {"ok": ok, "problems": problems, **facts}
-    if scored is not None:
-        try:
-            summary["report"] = str(_report(run_dir, args, summary, *scored, manifests, webcam_scores))
-        except Exception as exc:  # noqa: BLE001 - the scores stand without their report
-            summary["report_error"] = facts["report_error"] = f"{type(exc).__name__}: {exc}"
-            summary["ok"], summary["problems"] = judge()
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+def _fmt_or_na(values: dict, key: str, fmt: str, unit: str = "") -> str:
+    """``values[key]`` formatted with ``fmt`` and ``unit``, or ``n/a`` if not a number."""
+    v = values.get(key)
+    return format(v, fmt) + unit if isinstance(v, (int, float)) else "n/a"
+
+
+def _print_verdict_and_scores(summary: dict, gt_kind: str, gt_how: str) -> None:
+    """Print first whether the run was ok and, if not, each problem; then the tracker's
+    scores against the exact poses and the webcam ground truth's own scores."""
+    from demo.report import OK_TEXT
+
     print("\n=== arena demo: results ===")
     if summary["ok"]:
         print(f"ok: {OK_TEXT}")
@@ -760,8 +800,7 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
     s = summary.get("scores", {})
     if s:
         def f(key: str, fmt: str, unit: str = "") -> str:
-            v = s.get(key)
-            return format(v, fmt) + unit if isinstance(v, (int, float)) else "n/a"
+            return _fmt_or_na(s, key, fmt, unit)
         print(f"precision {f('precision', '.3f')}  recall {f('recall', '.3f')}  MOTA {f('mota', '.3f')}  "
               f"IDF1 {f('idf1', '.3f')}  HOTA {f('hota', '.3f')}  MAE {f('mae_cm', '.2f', ' cm')}  "
               f"heading MAE {f('heading_mae_deg', '.1f', '°')}  ID switches {s.get('id_switches')}  "
@@ -772,8 +811,7 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
     cam = summary.get("webcam")
     if cam:
         def g(key: str, fmt: str, unit: str = "") -> str:
-            v = cam.get(key)
-            return format(v, fmt) + unit if isinstance(v, (int, float)) else "n/a"
+            return _fmt_or_na(cam, key, fmt, unit)
         hs = summary["groundtruth"].get("headings")
         print(f"webcam ground truth by {gt_kind} ({gt_how}) against the exact poses: precision "
               f"{g('precision', '.3f')}  recall {g('recall', '.3f')}  MAE {g('mae_cm', '.2f', ' cm')}  heading MAE "
@@ -782,6 +820,12 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
                  f"{hs['unknown']} unknown" if hs else ""))
     else:
         print(f"webcam ground truth by {gt_kind}: not scored (groundtruth.csv missing or without rows)")
+
+
+def _print_run_health(summary: dict, first_track_s, health: dict) -> None:
+    """Print how the run went: time to the first track, the simulator's real-time
+    factor, the latency, the event windows lost and where, the odometry-only loops."""
+    rt, lat, wins, fallbacks = (health[k] for k in ("sim_realtime", "latency", "windows", "odometry_fallbacks"))
     if first_track_s is not None:
         print(f"first track after {first_track_s:.1f} s")
     if rt is not None:
@@ -801,6 +845,13 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
         print("closed loops on odometry alone (no track for > 0.5 s while driving): "
               + (", ".join(f"{r} {v['fallbacks']}x, {v['seconds']:.1f} s" + (" (still at the end)" if v["at_end"] else "")
                            for r, v in fallbacks.items() if v["fallbacks"]) or "none"))
+
+
+def _print_run_pointers(run_dir: Path, args, summary: dict) -> None:
+    """Print where the results are: the report (or why there is none), the run folder
+    and its files, and how to watch the run again."""
+    from demo.report import replay_hint, run_files
+
     if "report" in summary:
         print(f"report: {summary['report']}  (scores, real time, missions, webcam ground truth, plots)")
     elif "report_error" in summary:
@@ -812,7 +863,6 @@ def _finish(run_dir: Path, args, first_track_s, codes, pids, *, killed=(), died=
               "Zenoh router, so nothing else needs to run; Ctrl-C stops the viewer)")
     else:
         print("watch it again: not possible, the run left no arena.mcap")
-    return summary
 
 
 # --------------------------------------------------------------------------------------------

@@ -469,45 +469,9 @@ def write_study_report(out: Path, study: Study, plan: StudyPlan) -> Path:
                markdown_table(["pattern", "tracker", "t_a (ms)", "MAE (cm)", "recall", "MOTA"], rows),
                "", "![MAE vs t_a](ta.png)", ""]
     if _runs(study, "table"):
-        _plot_table(out / "table.png", study, plan)
-        md += ["## Robots x pattern x power (the paper's table)", "",
-               "Paper: precision, recall, MAE (cm), MOTA as published. Ours: both trackers on the same "
-               "recording; heading MAE in degrees (the paper gives a range over its single-robot runs).", ""]
-        for power in plan.table_powers:
-            pi = POWERS.index(power)
-            rows = []
-            for pattern in PATTERNS:
-                for n in plan.table_robots:
-                    p = PAPER_TABLE[(n, pattern)]
-                    heading = PAPER_HEADING[pattern] if n == 1 else "-"
-                    rows.append([n, pattern, "paper", p[0][pi], p[1][pi], p[2][pi], p[3][pi], heading,
-                                 "-", "-", "-"])
-                    for trk in TRACKERS:
-                        r = next(iter(_runs(study, "table", n_robots=n, pattern=pattern, power=power,
-                                            tracker=trk)), None)
-                        rows.append([n, pattern, trk, _ours(r, "precision"), _ours(r, "recall"),
-                                     _ours(r, "mae_cm", "{:.2f}"), _ours(r, "mota"),
-                                     _ours(r, "heading_mae_deg", "{:.1f}"), _ours(r, "idf1"),
-                                     _ours(r, "hota"), _ours(r, "id_switches", "{}")])
-            md += [f"### {power} % power", "",
-                   markdown_table(["n", "pattern", "who", "precision", "recall", "MAE cm", "MOTA",
-                                   "heading deg", "IDF1", "HOTA", "ID sw"], rows), ""]
-        md += ["![MAE by number of robots](table.png)", ""]
+        md += _table_section(out, study, plan)
     if _runs(study, "lighting"):
-        rows = []
-        for level in LIGHTING:
-            for n in plan.lighting_robots:
-                if level == "dimmed":
-                    p = PAPER_DIMMED[n]
-                    rows.append([level, n, "paper", p[0], p[1], p[2], p[3], "-"])
-                for trk in TRACKERS:
-                    r = next(iter(_runs(study, "lighting", n_robots=n, lighting=level, tracker=trk)), None)
-                    rows.append([level, n, trk, _ours(r, "precision"), _ours(r, "recall"),
-                                 _ours(r, "mae_cm", "{:.2f}"), _ours(r, "mota"), _ours(r, "id_switches", "{}")])
-        md += ["## Lighting (squares, 100 % power)", "",
-               "Paper: dimmed numbers as published; in the dark 'the event camera struggled to detect "
-               "motion consistently' (no numbers).", "",
-               markdown_table(["light", "n", "who", "precision", "recall", "MAE cm", "MOTA", "ID sw"], rows), ""]
+        md += _lighting_section(study, plan)
     if study.failures:
         md += ["## Failed runs", "", markdown_table(["run", "error"], [[f["step"], f["error"].replace("|", "/")]
                                                                    for f in study.failures]), ""]
@@ -518,3 +482,55 @@ def write_study_report(out: Path, study: Study, plan: StudyPlan) -> Path:
     path = out / "report.md"
     path.write_text("\n".join(md))
     return path
+
+
+def _table_section(out: Path, study: Study, plan: StudyPlan) -> list[str]:
+    """The report's section on the paper's table (robots x pattern x power): per power, the
+    paper's row then both trackers' rows on the same recording; writes ``table.png``."""
+    md: list[str] = []
+    _plot_table(out / "table.png", study, plan)
+    md += ["## Robots x pattern x power (the paper's table)", "",
+           "Paper: precision, recall, MAE (cm), MOTA as published. Ours: both trackers on the same "
+           "recording; heading MAE in degrees (the paper gives a range over its single-robot runs).", ""]
+    for power in plan.table_powers:
+        pi = POWERS.index(power)
+        rows = []
+        for pattern in PATTERNS:
+            for n in plan.table_robots:
+                p = PAPER_TABLE[(n, pattern)]
+                heading = PAPER_HEADING[pattern] if n == 1 else "-"
+                rows.append([n, pattern, "paper", p[0][pi], p[1][pi], p[2][pi], p[3][pi], heading,
+                             "-", "-", "-"])
+                for trk in TRACKERS:
+                    r = next(iter(_runs(study, "table", n_robots=n, pattern=pattern, power=power,
+                                        tracker=trk)), None)
+                    rows.append([n, pattern, trk, _ours(r, "precision"), _ours(r, "recall"),
+                                 _ours(r, "mae_cm", "{:.2f}"), _ours(r, "mota"),
+                                 _ours(r, "heading_mae_deg", "{:.1f}"), _ours(r, "idf1"),
+                                 _ours(r, "hota"), _ours(r, "id_switches", "{}")])
+        md += [f"### {power} % power", "",
+               markdown_table(["n", "pattern", "who", "precision", "recall", "MAE cm", "MOTA",
+                               "heading deg", "IDF1", "HOTA", "ID sw"], rows), ""]
+    md += ["![MAE by number of robots](table.png)", ""]
+    return md
+
+
+def _lighting_section(study: Study, plan: StudyPlan) -> list[str]:
+    """The report's section on lighting: per level and number of robots, the paper's dimmed
+    row (it gives no dark numbers) then both trackers' rows."""
+    md: list[str] = []
+    rows = []
+    for level in LIGHTING:
+        for n in plan.lighting_robots:
+            if level == "dimmed":
+                p = PAPER_DIMMED[n]
+                rows.append([level, n, "paper", p[0], p[1], p[2], p[3], "-"])
+            for trk in TRACKERS:
+                r = next(iter(_runs(study, "lighting", n_robots=n, lighting=level, tracker=trk)), None)
+                rows.append([level, n, trk, _ours(r, "precision"), _ours(r, "recall"),
+                             _ours(r, "mae_cm", "{:.2f}"), _ours(r, "mota"), _ours(r, "id_switches", "{}")])
+    md += ["## Lighting (squares, 100 % power)", "",
+           "Paper: dimmed numbers as published; in the dark 'the event camera struggled to detect "
+           "motion consistently' (no numbers).", "",
+           markdown_table(["light", "n", "who", "precision", "recall", "MAE cm", "MOTA", "ID sw"], rows), ""]
+    return md

@@ -74,6 +74,22 @@ def verdict(*, exit_codes: Mapping[str, int | None],
         p.append("interrupted before the missions ended (Ctrl-C or SIGTERM)")
     if failure:
         p.append(f"the run failed: {(failure.strip().splitlines() or [failure])[0]}")
+    p += _service_problems(exit_codes, killed, died, restarts)
+    p += _missions(manifests, robots)
+    p += _realtime_problems(sim_realtime, max_lag_s)
+    p += _window_problems(windows)
+    p += _score_problems(truth_rows, scores, score_error)
+    p += _webcam_problems(webcam, webcam_method, truth_rows)
+    if report_error:
+        p.append(f"no report.md: {report_error}")
+    return not p, p
+
+
+def _service_problems(exit_codes: Mapping[str, int | None], killed: Sequence[str],
+                      died: Mapping[str, int | None] | None, restarts: Mapping[str, int] | None) -> list[str]:
+    """Problems of the services themselves: died during the run, killed after their stop
+    grace, still running or not exiting cleanly when stopped, restarted (see :func:`verdict`)."""
+    p: list[str] = []
     died = dict(died or {})
     killed = list(killed)
     for name, code in died.items():
@@ -90,13 +106,26 @@ def verdict(*, exit_codes: Mapping[str, int | None],
     for name, n in (restarts or {}).items():
         if n:
             p.append(f"{name} was restarted {n} time(s) during the run; see logs/{name}.log")
-    p += _missions(manifests, robots)
+    return p
+
+
+def _realtime_problems(sim_realtime: Mapping | None, max_lag_s: float) -> list[str]:
+    """The simulator's lag unknown, or worse than ``max_lag_s``: the timings are then not a
+    lab's (see :func:`verdict`)."""
+    p: list[str] = []
     if sim_realtime is None:
         p.append("the simulator's real-time line is missing from logs/sim.log: its lag is unknown")
     elif sim_realtime.get("worst_lag_s", 0) > max_lag_s:
         p.append(f"the simulator fell {sim_realtime['worst_lag_s']:.2f} s behind the wall clock (at t = "
                  f"{sim_realtime.get('worst_lag_at_s', float('nan')):.1f} s; over {max_lag_s:g} s): the CPU "
                  "was short, so the timings are not the lab's")
+    return p
+
+
+def _window_problems(windows: Mapping | None) -> list[str]:
+    """Event windows lost (only while the missions ran, if known), or unknown whether any
+    were (see :func:`verdict`)."""
+    p: list[str] = []
     if windows is None:
         p.append("no edge and tracker status in arena.mcap: whether event windows were lost is unknown")
     else:
@@ -108,12 +137,25 @@ def verdict(*, exit_codes: Mapping[str, int | None],
                      + (" while the missions ran" if counts is during else "")
                      + f": the edge dropped {lost['edge_dropped']}, the tracker found {lost['tracker_missed']} "
                      f"missing and dropped {lost['tracker_queue_dropped']} from its queue")
+    return p
+
+
+def _score_problems(truth_rows: int | None, scores: Mapping | None, score_error: str | None) -> list[str]:
+    """The tracks not scored, or scored against no truth (see :func:`verdict`)."""
+    p: list[str] = []
     if truth_rows == 0:
         p.append("truth.csv has no rows in the scored span: nothing to score against (MOTA, IDF1, HOTA n/a)")
     elif scores is None:
         p.append(f"not scored: {score_error or 'tracks.csv or truth.csv is missing'}")
     elif not scores.get("n_gt"):
         p.append(f"no ground truth in the {scores.get('n_frames', 0)} scored frame(s): MOTA, IDF1, HOTA n/a")
+    return p
+
+
+def _webcam_problems(webcam: Mapping | None, webcam_method: str | None, truth_rows: int | None) -> list[str]:
+    """The webcam ground truth missing, or finding too few robot positions to score against
+    (checked only when it was asked for and there was truth; see :func:`verdict`)."""
+    p: list[str] = []
     if webcam_method is not None and truth_rows:
         if webcam is None:
             p.append(f"no webcam ground truth ({webcam_method}): groundtruth.csv is missing or has no rows; "
@@ -123,9 +165,7 @@ def verdict(*, exit_codes: Mapping[str, int | None],
             p.append(f"the webcam ground truth ({webcam_method}) found the robots in only "
                      f"{'n/a' if r is None else format(r, '.0%')} of their positions (under "
                      f"{MIN_WEBCAM_RECALL:.0%}): scoring against it would measure little; see logs/groundtruth.log")
-    if report_error:
-        p.append(f"no report.md: {report_error}")
-    return not p, p
+    return p
 
 
 def _missions(manifests: Sequence[Mapping] | None, robots: int | None) -> list[str]:

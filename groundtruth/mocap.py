@@ -377,8 +377,6 @@ def align_truth(tracks: np.ndarray, truth: np.ndarray, *, time_offset_us: float 
     ``none`` (truth already in the arena frame), ``rigid`` or ``similarity``. Pairs farther than
     ``gate_m`` after a fit are not used. Raises :class:`MocapError` when nothing overlaps.
     """
-    from scipy.optimize import minimize_scalar
-
     if align not in ALIGN_MODES:
         raise ValueError(f"align must be one of {ALIGN_MODES}, got {align!r}")
     excl = set(exclude_states)
@@ -427,34 +425,8 @@ def align_truth(tracks: np.ndarray, truth: np.ndarray, *, time_offset_us: float 
             pairs, _ = pairs_at(0.0, tf)
     delta = 0.0
     if time_offset_us is None:
-        # refine on the positions: pairs fixed (those inside the truth over the whole search)
         _, _, _, inl, ok = fit_at(pairs, 0.0)
-        keep = np.flatnonzero(ok)[inl]
-        fixed = _Pairs(pairs.rows[keep], pairs.body[keep])
-        both = _pair_xy(bodies, fixed, t, -search_us)[1] & _pair_xy(bodies, fixed, t, search_us)[1]
-        fixed = _Pairs(fixed.rows[both], fixed.body[both])
-        if len(fixed.rows) < 10:
-            raise MocapError("too few track rows near the truth to refine the time offset: give --time-offset S")
-
-        def cost(d: float) -> float:
-            src, _ = _pair_xy(bodies, fixed, t, d)
-            dst = xy[fixed.rows]
-            return float(np.mean(_residuals(src, dst, fit_transform(src, dst, align)) ** 2))
-
-        scan = np.arange(-search_us, search_us + 1, 2000.0)
-        costs = [cost(d) for d in scan]
-        d0 = float(scan[int(np.argmin(costs))])
-        res = minimize_scalar(cost, bounds=(d0 - 2000.0, d0 + 2000.0), method="bounded",
-                              options={"xatol": 0.5, "maxiter": 100})
-        delta = float(res.x)
-        # standard error: var(residual per axis) / sum |dp/dt|^2 over the pairs
-        src0, _ = _pair_xy(bodies, fixed, t, delta)
-        src1, _ = _pair_xy(bodies, fixed, t, delta + 1000.0)
-        dst = xy[fixed.rows]
-        tf_d = fit_transform(src0, dst, align)
-        v2 = np.sum(((src0 - src1) * tf_d.scale / 1000.0) ** 2)    # (m/µs)^2
-        sigma2 = np.sum(_residuals(src0, dst, tf_d) ** 2) / max(2 * len(dst) - 4, 1)
-        stderr = float(math.sqrt(sigma2 / v2)) if v2 > 0 else math.inf
+        delta, stderr = _refine_offset(bodies, pairs, inl, ok, t, xy, align, search_us)
         estimate = OffsetEstimate(shift + delta, coarse, corr, nxt, stderr, True)
         if pairing == "nearest":
             pairs, _ = pairs_at(delta, tf)
@@ -462,6 +434,56 @@ def align_truth(tracks: np.ndarray, truth: np.ndarray, *, time_offset_us: float 
     if pairing == "nearest":        # pairs once more with the final fit
         pairs, _ = pairs_at(delta, tf)
         tf, src, dst, inl, ok = fit_at(pairs, delta)
+    fit = _frame_fit(align, tf, pairing, bodies, pairs, src, dst, inl, ok)
+    offset_us = shift + delta
+    out = _truth_in_track_frame(truth, tf, offset_us)
+    return TruthAlignment(out, offset_us, "auto" if time_offset_us is None else "given", estimate, fit)
+
+
+def _refine_offset(bodies: _Bodies, pairs: _Pairs, inl: np.ndarray, ok: np.ndarray, t: np.ndarray,
+                   xy: np.ndarray, align: str, search_us: float) -> tuple[float, float]:
+    """Refine the time offset on the positions, within ``search_us`` of the coarse one: the
+    inlier pairs (``ok``, then ``inl``) that stay inside the truth over the whole search are
+    fixed, the mean squared residual of a fresh fit is scanned every 2 ms then minimised.
+
+    Returns ``(delta, stderr)``: the refinement (µs, to add to the coarse offset) and its
+    standard error, var(residual per axis) / sum |dp/dt|^2 over the pairs."""
+    from scipy.optimize import minimize_scalar
+
+    # refine on the positions: pairs fixed (those inside the truth over the whole search)
+    keep = np.flatnonzero(ok)[inl]
+    fixed = _Pairs(pairs.rows[keep], pairs.body[keep])
+    both = _pair_xy(bodies, fixed, t, -search_us)[1] & _pair_xy(bodies, fixed, t, search_us)[1]
+    fixed = _Pairs(fixed.rows[both], fixed.body[both])
+    if len(fixed.rows) < 10:
+        raise MocapError("too few track rows near the truth to refine the time offset: give --time-offset S")
+
+    def cost(d: float) -> float:
+        src, _ = _pair_xy(bodies, fixed, t, d)
+        dst = xy[fixed.rows]
+        return float(np.mean(_residuals(src, dst, fit_transform(src, dst, align)) ** 2))
+
+    scan = np.arange(-search_us, search_us + 1, 2000.0)
+    costs = [cost(d) for d in scan]
+    d0 = float(scan[int(np.argmin(costs))])
+    res = minimize_scalar(cost, bounds=(d0 - 2000.0, d0 + 2000.0), method="bounded",
+                          options={"xatol": 0.5, "maxiter": 100})
+    delta = float(res.x)
+    # standard error: var(residual per axis) / sum |dp/dt|^2 over the pairs
+    src0, _ = _pair_xy(bodies, fixed, t, delta)
+    src1, _ = _pair_xy(bodies, fixed, t, delta + 1000.0)
+    dst = xy[fixed.rows]
+    tf_d = fit_transform(src0, dst, align)
+    v2 = np.sum(((src0 - src1) * tf_d.scale / 1000.0) ** 2)    # (m/µs)^2
+    sigma2 = np.sum(_residuals(src0, dst, tf_d) ** 2) / max(2 * len(dst) - 4, 1)
+    stderr = float(math.sqrt(sigma2 / v2)) if v2 > 0 else math.inf
+    return delta, stderr
+
+
+def _frame_fit(align: str, tf: Transform2D, pairing: str, bodies: _Bodies, pairs: _Pairs, src: np.ndarray,
+               dst: np.ndarray, inl: np.ndarray, ok: np.ndarray) -> FrameFit:
+    """How well the final fit ``tf`` put the truth on the tracks: its inliers, outliers,
+    rms and largest residual, and the pairs used per robot."""
     res = _residuals(src[inl], dst[inl], tf)
     per_robot = {}
     used_bodies = pairs.body[ok][inl]
@@ -470,7 +492,12 @@ def align_truth(tracks: np.ndarray, truth: np.ndarray, *, time_offset_us: float 
     fit = FrameFit(align, tf, pairing, int(inl.sum()), int((~inl).sum()),
                    float(np.sqrt(np.mean(res ** 2))) if len(res) else math.nan,
                    float(res.max()) if len(res) else math.nan, per_robot)
-    offset_us = shift + delta
+    return fit
+
+
+def _truth_in_track_frame(truth: np.ndarray, tf: Transform2D, offset_us: float) -> np.ndarray:
+    """``truth`` moved onto the tracks' clock (+ ``offset_us``, rounded) and frame (``tf``:
+    positions, headings and velocities)."""
     out = np.empty(len(truth), dtype=TRUTH_DTYPE)
     out["t_us"] = truth["t_us"] + int(round(offset_us))
     out["robot"] = truth["robot"]
@@ -479,7 +506,7 @@ def align_truth(tracks: np.ndarray, truth: np.ndarray, *, time_offset_us: float 
     c, s = math.cos(tf.rotation_rad), math.sin(tf.rotation_rad)
     out["vx_mps"] = tf.scale * (c * truth["vx_mps"] - s * truth["vy_mps"])
     out["vy_mps"] = tf.scale * (s * truth["vx_mps"] + c * truth["vy_mps"])
-    return TruthAlignment(out, offset_us, "auto" if time_offset_us is None else "given", estimate, fit)
+    return out
 
 
 # ----------------------------------------------------------------------------------------------

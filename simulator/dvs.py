@@ -818,6 +818,19 @@ class DvsSensor:
         # photoreceptor low-pass factor of background pixels for one step of step_us
         f_bg = np.maximum(p.cutoff_hz * (irr_bg + p.dark_current), p.min_cutoff_hz)
         self._bg_alpha = 1.0 - np.exp(-2.0 * np.pi * f_bg * p.step_us * 1e-6)
+        self._init_reach(camera, rp, bodies)
+        self._init_background(camera)
+        self._hist = np.zeros((self._n, self._keep_steps, 4), dtype=np.int64)
+        self._hist_i = 0
+        self._buf = self._alloc(1 << 16)
+        self._ready = False
+        #: time of the last update, µs
+        self.t_us = 0
+
+    def _init_reach(self, camera: CeilingCamera, rp: np.ndarray, bodies: np.ndarray) -> None:
+        """Set how far (px) from its floor centre each robot can change a pixel and how long
+        (``keep_s``) a pixel stays simulated after a robot left (part of ``__init__``)."""
+        p = self.params
         # ROI: how far (px) from its floor centre a robot can change a pixel (footprint,
         # contact shadow, parallax of its top anywhere on the sensor), and how long a pixel
         # stays simulated after a robot left (4 photoreceptor time constants of the darkest
@@ -833,6 +846,12 @@ class DvsSensor:
             self._illum0 * gain_min * darkest + p.dark_current)))
         self.keep_s = min(0.15, max(0.02, 4.0 * tau_max))
         self._keep_steps = max(1, int(math.ceil(self.keep_s * 1e6 / p.step_us)))
+
+    def _init_background(self, camera: CeilingCamera) -> None:
+        """Set the per-pixel rates of background activity and leak events, and the alias
+        table to draw their pixels from (part of ``__init__``)."""
+        p = self.params
+        h, w = self.height, self.width
         # statistical background: per-pixel rates of background activity (spread by
         # brightness when shot_noise) and of leak events (ON, proportional to the light)
         from simulator.camera import MAT_REFLECTANCE
@@ -853,12 +872,6 @@ class DvsSensor:
         # Walker/Vose alias table of the per-pixel rates: a pixel in O(1) per event (two
         # gathers) instead of a binary search of the cumulative rates (cache misses)
         self._alias_prob, self._alias_idx = _alias_table(total.ravel())
-        self._hist = np.zeros((self._n, self._keep_steps, 4), dtype=np.int64)
-        self._hist_i = 0
-        self._buf = self._alloc(1 << 16)
-        self._ready = False
-        #: time of the last update, µs
-        self.t_us = 0
 
     # ------------------------------------------------------------------ public
     def reset(self, poses: np.ndarray, t_us: int = 0) -> None:

@@ -488,6 +488,22 @@ class _Track:
             self._lost = True
         spinning = not math.isnan(self.yaw) and abs(self.yaw_rate) * cfg.spin_radius_m > speed
         clear = math.isfinite(ob.yaw) and speed >= cfg.min_speed_mps and not sparse
+        used = self._yaw_from_motion(ob, clear, lag, speed, period, var_m, shape, spinning, whole)
+        if self._yaw_from_shape(ob, lag, speed, period, var_m, shape, spinning, sparse):
+            used = True
+        self._brake_yaw_rate(ob, used, shape, at_rest)
+
+    def _yaw_from_motion(self, ob: Observation, clear: bool, lag: float, speed: float, period: float,
+                         var_m: float, shape: float, spinning: bool, whole: bool) -> bool:
+        """The motion-heading half of :meth:`_update_yaw_robust`; returns whether the motion
+        heading ``ob.yaw`` (variance ``var_m``) was used.
+
+        A clear motion (``clear``) starts the heading (twice in agreement at twice
+        ``min_speed_mps``), is measured when within 45 degrees of the prediction (not while
+        spinning), else counts against the heading: after enough disagreements the heading is
+        reset to it, or, if the motion and the shape agree modulo ``period`` twice, the heading
+        is put on the motion's branch of the shape."""
+        cfg = self.cfg
         used = False
         if clear and math.isnan(self.yaw):
             if speed >= 2.0 * cfg.min_speed_mps:
@@ -526,6 +542,19 @@ class _Track:
                 elif self._disagree >= limit or self.hidden >= cfg.yaw_reset_updates or self.restored:
                     self._yaw_reset(ob.yaw)
                     used = True
+        return used
+
+    def _yaw_from_shape(self, ob: Observation, lag: float, speed: float, period: float, var_m: float,
+                        shape: float, spinning: bool, sparse: bool) -> bool:
+        """The shape half of :meth:`_update_yaw_robust`; returns whether the shape heading
+        ``shape`` (a whole robot's, NaN otherwise) was used.
+
+        Learns the shape's spread about a clear motion heading while driving about straight
+        (truncated at 3 sigma), then measures the shape (modulo ``period``, variance
+        ``shape_sigma_deg`` squared, larger if ``sparse``) unless the shape is no better than
+        chance; a shape outside the gate marks the branch count as lost."""
+        cfg = self.cfg
+        used = False
         if math.isfinite(shape) and not math.isnan(self.yaw):
             if (math.isfinite(ob.yaw) and speed >= 2.0 * cfg.min_speed_mps and abs(self.yaw_rate) < 0.5
                     and not sparse and not spinning):
@@ -550,6 +579,13 @@ class _Track:
                     used = True
                 else:
                     self._lost = True
+        return used
+
+    def _brake_yaw_rate(self, ob: Observation, used: bool, shape: float, at_rest: bool) -> None:
+        """End of :meth:`_update_yaw_robust`: with neither a measurement used nor a rotating
+        outline, the yaw rate decays (``stop_tau_s``); it is bounded by what a differential drive
+        can do (2 * ``max_speed_mps`` / ``chassis_m``) and zero at rest."""
+        cfg = self.cfg
         if not used and not math.isfinite(shape) and not math.isnan(self.yaw):
             # neither a rotating outline nor a clear motion: no evidence that it still turns
             dt = max(0.0, (ob.t_us - self.last_seen_us) * 1e-6)

@@ -438,6 +438,46 @@ class LiveTracker:
         if resumed:
             self._rebuild_pending = True
         self._apply_names()
+        decoded = self._decode_window(payload)
+        if decoded is None:
+            return []
+        win, events = decoded
+        if not self._in_order(win):
+            return []
+        self._count_seq_gap(win, now_ns, dropped_in_queue)
+        self.last_seq = win.seq
+        self.sensor_to_host_ns = win.sensor_to_host_ns
+        self._last_dropped = win.dropped
+        acc = self.pipeline.accumulation_us
+        stale = newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.STALE_MARGIN_US
+        if self._skip_stalled(win, newest_end_us, dropped_in_queue, acc):
+            return []
+        if not self._events_fit(win, events):
+            return []
+        t0 = time.perf_counter()
+        try:
+            tracks = self.pipeline.push(events, win.t_end_us)
+        except ValueError as exc:
+            self._bad("windows_bad", f"window seq {win.seq} skipped: {exc}")
+            return []
+        self._count("windows_in")
+        if self.svc is not None:
+            self.svc.gauge("process_ms", round((time.perf_counter() - t0) * 1e3, 3))
+        if self._withheld_while_rebuilding(win, tracks, acc):
+            return []
+        out = self._track_messages(tracks, win, now_ns)
+        with self.lock:
+            self.fleet = {k: m for k, m, _ in out}
+        self._feed_namer(out, now_ns, win.t_end_us)
+        if stale:   # processed, logged to the CSV by the worker, not published
+            self._count("tracks_stale", len(out))
+            self.unpublished = [tr for _, _, tr in out]
+            return []
+        return out
+
+    def _decode_window(self, payload: bytes):
+        """``(window, events)`` decoded from ``payload``, or None (counted in ``windows_bad``)
+        if it is corrupt, of another camera or of another sensor size than the calibration's."""
         try:
             win = EventWindow.decode(payload)
             if win.camera != self.camera:
@@ -448,7 +488,13 @@ class LiveTracker:
             events = decode(win.codec, bytes(win.data), win.count)
         except (MessageError, CodecError) as exc:
             self._bad("windows_bad", f"corrupt event window skipped: {exc}")
-            return []
+            return None
+        return win, events
+
+    def _in_order(self, win: EventWindow) -> bool:
+        """Whether ``win`` comes after the last window processed. A window far older than it
+        is a restarted stream: the pipeline starts afresh (``stream_restarts``) and it is in
+        order; one slightly older or as old is late: skipped (``windows_late``)."""
         last = self.pipeline.last_t_us
         if last is not None and win.t_end_us < last - self.RESTART_US and self.make_pipeline is not None:
             self._count("stream_restarts")
@@ -460,7 +506,13 @@ class LiveTracker:
         if last is not None and win.t_end_us <= last:
             self._bad("windows_late", f"out-of-order window seq {win.seq} (ends {win.t_end_us} µs, "
                                       f"last {last} µs) skipped")
-            return []
+            return False
+        return True
+
+    def _count_seq_gap(self, win: EventWindow, now_ns: int, dropped_in_queue: int) -> None:
+        """Account for the windows missing before ``win`` (by its seq): a huge jump is a
+        sequence reset; the rest were dropped by the edge (by its own count), by our full
+        queue (``dropped_in_queue``), or lost on the way (``windows_missed``)."""
         if self.last_seq is not None and win.seq > self.last_seq + 1 + self.MAX_SEQ_GAP:
             self._count("sequence_resets")
             log.warning("camera %s: seq jumped from %d to %d: counted as a sequence reset, not as missed windows",
@@ -482,11 +534,13 @@ class LiveTracker:
                 log.warning("camera %s: %d window(s) before seq %d lost on the way (neither the edge nor "
                             "our queue dropped them); this one was published %.0f ms ago",
                             self.camera, gap - at_edge - here, win.seq, waited)
-        self.last_seq = win.seq
-        self.sensor_to_host_ns = win.sensor_to_host_ns
-        self._last_dropped = win.dropped
-        acc = self.pipeline.accumulation_us
-        stale = newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.STALE_MARGIN_US
+
+    def _skip_stalled(self, win: EventWindow, newest_end_us: int | None, dropped_in_queue: int, acc: int) -> bool:
+        """Whether to skip ``win`` unprocessed because it ends more than the accumulation time
+        + ``SKIP_MARGIN_US`` before the newest window received (a stalled tracker catching up;
+        ``windows_skipped_stale``, logged once per run of them). At the first window after such
+        a run, the run is logged, and if it spanned a whole accumulation window, the tracks are
+        withheld until that is full again. ``acc``: the pipeline's accumulation time, µs."""
         if newest_end_us is not None and win.t_end_us < newest_end_us - acc - self.SKIP_MARGIN_US:
             self._count("windows_skipped_stale")
             if self._skipped is None:
@@ -494,36 +548,41 @@ class LiveTracker:
             self._skipped[0] += 1
             self._skipped[2:4] = [win.t_end_us, newest_end_us]
             self._skipped[4] += dropped_in_queue
-            return []
+            return True
         if self._skipped is not None:
             if self._skipped[2] - self._skipped[1] >= acc:
                 self._rebuild_pending = True   # the accumulation window lost its history: rebuild it first
             self._end_skip_run()
+        return False
+
+    def _events_fit(self, win: EventWindow, events: np.ndarray) -> bool:
+        """Whether ``win``'s events all precede its end (else it is skipped, ``windows_bad``);
+        those before its start are counted (``events_late``) and processed."""
         if events.size:
             # the edge's Slicer (arena.slicing) puts a late event into the window open when it came,
             # so events may precede t_start (counted, processed as offline) but never reach t_end
             if int(events["t"].max()) >= win.t_end_us:
                 self._bad("windows_bad", f"window seq {win.seq} has events at or after its end: skipped")
-                return []
+                return False
             late = int(np.count_nonzero(events["t"] < win.t_start_us))
             if late:
                 self._count("events_late", late)
-        t0 = time.perf_counter()
-        try:
-            tracks = self.pipeline.push(events, win.t_end_us)
-        except ValueError as exc:
-            self._bad("windows_bad", f"window seq {win.seq} skipped: {exc}")
-            return []
-        self._count("windows_in")
-        if self.svc is not None:
-            self.svc.gauge("process_ms", round((time.perf_counter() - t0) * 1e3, 3))
+        return True
+
+    def _withheld_while_rebuilding(self, win: EventWindow, tracks: list, acc: int) -> bool:
+        """Whether ``win``'s tracks are withheld (``tracks_withheld``) because the pipeline's
+        accumulation window is being rebuilt after a stall or a long skip."""
         if self._rebuild_pending:
             self._rebuild_pending, self._rebuild_until = False, win.t_start_us + acc
         if self._rebuild_until is not None:
             if win.t_end_us < self._rebuild_until:
                 self._count("tracks_withheld", len(tracks))
-                return []
+                return True
             self._rebuild_until = None
+        return False
+
+    def _track_messages(self, tracks: list, win: EventWindow, now_ns: int) -> list[tuple[str, Track, TrackedRobot]]:
+        """``(key, Track message, track)`` for each track of ``win``, with its timings."""
         out = []
         for tr in tracks:
             msg = Track(track_id=tr.track_id, robot=tr.robot, camera=self.camera, stamp_us=tr.t_us,
@@ -533,13 +592,6 @@ class LiveTracker:
                         tracker_publish_ns=now_ns,
                         host_ns=None if win.sensor_to_host_ns is None else tr.t_us * 1000 + win.sensor_to_host_ns)
             out.append((robot_key(tr.robot or tr.track_id), msg, tr))
-        with self.lock:
-            self.fleet = {k: m for k, m, _ in out}
-        self._feed_namer(out, now_ns, win.t_end_us)
-        if stale:   # processed, logged to the CSV by the worker, not published
-            self._count("tracks_stale", len(out))
-            self.unpublished = [tr for _, _, tr in out]
-            return []
         return out
 
 
@@ -571,37 +623,8 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
             _restore_state(live, state_path, state_max_age_s, svc)
         next_save = time.monotonic() + 1.0
         publishers: dict[str, zenoh.Publisher] = {}
-
-        def on_query(query: zenoh.Query) -> None:
-            with live.lock:
-                fleet = list(live.fleet.items())
-            for key, msg in fleet:
-                if zenoh.KeyExpr(key).intersects(query.key_expr):
-                    query.reply(key, msg.encode())
-
-        def on_groundtruth(sample) -> None:
-            try:
-                gt = GroundTruthPose.decode(sample.payload.to_bytes())
-            except MessageError:
-                svc.count("groundtruth_bad")
-                return
-            live.observe_groundtruth(gt.robot, gt.x, gt.y, gt.stamp_us)
-
-        def on_telemetry(sample) -> None:
-            try:
-                tel = Telemetry.decode(sample.payload.to_bytes())
-            except MessageError:
-                svc.count("telemetry_bad")
-                return
-            live.observe_telemetry(tel)
-
-        queryable = session.declare_queryable(ALL_ROBOTS, on_query)
-        gt_sub = (session.declare_subscriber(ALL_GROUNDTRUTH, on_groundtruth)
-                  if names_from_groundtruth else None)
-        tel_sub = (session.declare_subscriber(ALL_TELEMETRY, on_telemetry)
-                   if names_from_telemetry else None)
-        svc.count("names_from_telemetry", 0)
-        svc.count("names_from_groundtruth", 0)
+        queryable, gt_sub, tel_sub = _declare_inputs(session, live, svc, names_from_groundtruth,
+                                                     names_from_telemetry)
         inbox = Inbox(max(1, queue))
         sub = session.declare_subscriber(events_key(camera), lambda sample: inbox.put(sample.payload.to_bytes()))
         log.info("tracking %s (%s tracker, %s detector) -> arena/robots/*", events_key(camera), tracker, detector)
@@ -626,22 +649,7 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
                         newest = (queued, live.window_end(queued))
                     out = live.handle(payload, time.time_ns(), dropped,
                                       newest_end_us=newest[1] if queued is not None else None, resumed=resumed)
-                    for key, msg, tr in out:
-                        pub = publishers.get(key)
-                        if pub is None:
-                            pub = publishers[key] = session.declare_publisher(key)
-                        msg.tracker_publish_ns = time.time_ns()
-                        pub.put(msg.encode())
-                    if out:
-                        svc.count("tracks_out", len(out))
-                        svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
-                        edge = out[0][1].edge_publish_ns
-                        if edge:
-                            svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
-                        if writer is not None:
-                            writer.write((tr for _, _, tr in out), live.sensor_to_host_ns)
-                    if live.unpublished and writer is not None:   # stale: logged, not published
-                        writer.write(live.unpublished, live.sensor_to_host_ns)
+                    _publish(session, publishers, out, live, svc, writer)
                 except Exception as exc:   # last resort: one window must not stop the tracker
                     svc.count("windows_failed")
                     svc.error(f"window not processed ({type(exc).__name__}: {str(exc)[:300]}); "
@@ -660,6 +668,68 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
                 tel_sub.undeclare()
             for pub in publishers.values():
                 pub.undeclare()
+
+
+def _declare_inputs(session: zenoh.Session, live: LiveTracker, svc, names_from_groundtruth: bool,
+                    names_from_telemetry: bool):
+    """Declare what the tracker answers and listens to besides its event windows: the
+    ``get("arena/robots/*")`` queryable (the latest fleet), and, if asked, the subscribers
+    to ground truth and telemetry that name tracks (a bad message is counted, not raised).
+    Returns ``(queryable, groundtruth subscriber or None, telemetry subscriber or None)``."""
+    def on_query(query: zenoh.Query) -> None:
+        with live.lock:
+            fleet = list(live.fleet.items())
+        for key, msg in fleet:
+            if zenoh.KeyExpr(key).intersects(query.key_expr):
+                query.reply(key, msg.encode())
+
+    def on_groundtruth(sample) -> None:
+        try:
+            gt = GroundTruthPose.decode(sample.payload.to_bytes())
+        except MessageError:
+            svc.count("groundtruth_bad")
+            return
+        live.observe_groundtruth(gt.robot, gt.x, gt.y, gt.stamp_us)
+
+    def on_telemetry(sample) -> None:
+        try:
+            tel = Telemetry.decode(sample.payload.to_bytes())
+        except MessageError:
+            svc.count("telemetry_bad")
+            return
+        live.observe_telemetry(tel)
+
+    queryable = session.declare_queryable(ALL_ROBOTS, on_query)
+    gt_sub = (session.declare_subscriber(ALL_GROUNDTRUTH, on_groundtruth)
+              if names_from_groundtruth else None)
+    tel_sub = (session.declare_subscriber(ALL_TELEMETRY, on_telemetry)
+               if names_from_telemetry else None)
+    svc.count("names_from_telemetry", 0)
+    svc.count("names_from_groundtruth", 0)
+    return queryable, gt_sub, tel_sub
+
+
+def _publish(session: zenoh.Session, publishers: dict, out: list, live: LiveTracker, svc,
+             writer: TrackCsvWriter | None) -> None:
+    """Publish the tracks of one window (declaring a publisher per robot key on first use,
+    stamped with the publish time), gauge the robots and the edge-to-track latency, and log
+    every track, published or stale, to ``writer``."""
+    for key, msg, tr in out:
+        pub = publishers.get(key)
+        if pub is None:
+            pub = publishers[key] = session.declare_publisher(key)
+        msg.tracker_publish_ns = time.time_ns()
+        pub.put(msg.encode())
+    if out:
+        svc.count("tracks_out", len(out))
+        svc.gauge("robots", sum(1 for _, m, _ in out if m.state != "tentative"))
+        edge = out[0][1].edge_publish_ns
+        if edge:
+            svc.gauge("latency_ms", round((time.time_ns() - edge) / 1e6, 3))
+        if writer is not None:
+            writer.write((tr for _, _, tr in out), live.sensor_to_host_ns)
+    if live.unpublished and writer is not None:   # stale: logged, not published
+        writer.write(live.unpublished, live.sensor_to_host_ns)
 
 
 class Inbox:
