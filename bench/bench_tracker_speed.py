@@ -27,6 +27,7 @@ is the ratio of medians: a paper window is one track update, like one of our sli
     python bench/bench_tracker_speed.py                      # all streams, ~5 minutes
     python bench/bench_tracker_speed.py --quick              # 4 streams, 2 s each
     python bench/bench_tracker_speed.py --only "4 robots 0.5 Hz" --paper-windows 5
+    python bench/bench_tracker_speed.py --quick --end-to-end  # + the 12 s paper-format CSV end to end
 
 Targets (issue 22): 4 robots at 0.5 Hz/px: median <= 1 ms, p99 <= 3 ms; 16 robots <= 3 ms;
 32 robots keep 100 Hz on one core (mean < 10 ms per 10 ms slice).
@@ -200,6 +201,9 @@ def main(argv=None) -> int:
     ap.add_argument("--paper-windows", type=int, default=12, help="windows timed for the paper (default 12)")
     ap.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}; 2 s each")
     ap.add_argument("--only", action="append", default=[], help="run only streams whose name contains this")
+    ap.add_argument("--end-to-end", action="store_true",
+                    help="then the end-to-end run: arena track on the 12 s paper-format CSV against the paper's "
+                         "pipeline reading the same file (bench/bench_end_to_end.py, one timed run each)")
     args = ap.parse_args(argv)
     seconds = 2.0 if args.quick and args.seconds == 3.0 else args.seconds
     if seconds < 1.5:
@@ -250,7 +254,14 @@ def main(argv=None) -> int:
     if any(same != "yes" for _, same in summary.values()):
         print("DIFFERENT DETECTIONS between the incremental and the full-window detector: a bug")
     print(f"machine load average while measuring: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    return 1 if any(same != "yes" for _, same in summary.values()) else 0
+    code = 1 if any(same != "yes" for _, same in summary.values()) else 0
+    if args.end_to_end:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import bench_end_to_end
+
+        print(flush=True)
+        code = max(code, bench_end_to_end.main(["--runs", "1"]))
+    return code
 
 
 if __name__ == "__main__":
