@@ -64,3 +64,20 @@ def line_pose(u0, v0, du_s, dv_s, t_start=0):
         th = np.full(dt.shape, np.arctan2(dv_s, du_s))
         return u0 + du_s * dt, v0 + dv_s * dt, th
     return f
+
+
+class Counts:
+    """The counting part of arena.service.Service (``count``, ``gauge``, ``error``), without
+    Zenoh: what a LiveTracker counts lands in ``c``."""
+
+    def __init__(self):
+        self.c: dict[str, int] = {}
+
+    def count(self, key, n=1):
+        self.c[key] = self.c.get(key, 0) + n
+
+    def gauge(self, key, value):
+        pass
+
+    def error(self, msg):
+        pass

@@ -19,28 +19,12 @@ from arena.codec import encode
 from arena.messages import EventWindow, Status, Track, decode
 from arena.session import open_session
 from tests.conftest import arena_cmd
-from tests.tracker.synth import calibration_dict, line_pose, window
+from tests.tracker.synth import Counts, calibration_dict, line_pose, window
 from tracker.calibration import Calibration
 from tracker.pipeline import Pipeline
 from tracker.service import LiveTracker
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1"}
-
-
-class Counts:
-    """The counting part of arena.service.Service, without Zenoh."""
-
-    def __init__(self):
-        self.c: dict[str, int] = {}
-
-    def count(self, key, n=1):
-        self.c[key] = self.c.get(key, 0) + n
-
-    def gauge(self, key, value):
-        pass
-
-    def error(self, msg):
-        pass
 
 
 def _win(ev, k: int) -> bytes:

@@ -6,27 +6,13 @@ import numpy as np
 
 from arena.codec import encode
 from arena.messages import EventWindow
-from tests.tracker.synth import SCALE, calibration_dict, line_pose, window
+from tests.tracker.synth import Counts, SCALE, calibration_dict, line_pose, window
 from tracker.calibration import Calibration
 from tracker.pipeline import Pipeline
 from tracker.service import LiveTracker
 
 HOST0_NS = 1_700_000_000_000_000_000   # host epoch ns of sensor time 0
 H = 480
-
-
-class Counts:
-    def __init__(self):
-        self.c: dict[str, int] = {}
-
-    def count(self, key, n=1):
-        self.c[key] = self.c.get(key, 0) + n
-
-    def gauge(self, key, value):
-        pass
-
-    def error(self, msg):
-        pass
 
 
 def win(ev, k):

@@ -10,23 +10,10 @@ import pytest
 
 from arena.codec import encode
 from arena.messages import EventWindow, Telemetry
+from tests.tracker.synth import Counts
 
 SENSOR_TO_HOST_NS = 1_700_000_000_000_000_000   # host epoch ns of sensor time 0
 ROBOT_CLOCK_US = (123_456, 9_876_543, 55_555)   # each robot's clock at sensor time 0, µs
-
-
-class Counts:
-    def __init__(self):
-        self.c: dict[str, int] = {}
-
-    def count(self, key, n=1):
-        self.c[key] = self.c.get(key, 0) + n
-
-    def gauge(self, key, value):
-        pass
-
-    def error(self, msg):
-        pass
 
 
 @pytest.fixture(scope="module")

@@ -5,28 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.tracker.synth import line_pose, window
+from tests.tracker.synth import Counts, line_pose, window
 from tests.tracker.test_service_unit import make, win
 from tracker.service import LiveTracker
 
 
-class _Counts:
-    def __init__(self):
-        self.c = {}
-
-    def count(self, key, n=1):
-        self.c[key] = self.c.get(key, 0) + n
-
-    def gauge(self, key, value):
-        pass
-
-    def error(self, msg):
-        pass
-
-
 def test_a_seq_jump_of_2_to_the_40_is_one_sequence_reset_not_missed_windows():
     ev = window(np.random.default_rng(6), [line_pose(200, 200, 100.0, 0.0)], 0, 200_000)
-    svc = _Counts()
+    svc = Counts()
     live = LiveTracker(make(), "c0", svc=svc)
     for k in range(5):
         live.handle(win(ev, k).encode(), now_ns=5)
@@ -47,7 +33,7 @@ def test_a_window_with_late_events_first_is_processed_as_offline_not_skipped():
     from arena.messages import EventWindow
 
     ev = window(np.random.default_rng(7), [line_pose(200, 200, 100.0, 0.0)], 0, 200_000)
-    svc = _Counts()
+    svc = Counts()
     live = LiveTracker(make(), "c0", svc=svc)
     for k in range(5):
         live.handle(win(ev, k).encode(), now_ns=5)

@@ -6,7 +6,7 @@ import numpy as np
 
 from arena.codec import encode
 from arena.messages import EventWindow
-from tests.tracker.synth import calibration_dict, line_pose, window
+from tests.tracker.synth import Counts, calibration_dict, line_pose, window
 from tracker.calibration import Calibration
 from tracker.pipeline import Pipeline
 from tracker.service import Inbox, LiveTracker
@@ -113,19 +113,6 @@ def test_state_file_round_trip_and_what_is_not_restored(tmp_path, monkeypatch):
 
 
 def test_sequence_gaps_are_split_into_edge_drops_and_windows_lost_on_the_way():
-    class Counts:
-        def __init__(self):
-            self.c = {}
-
-        def count(self, key, n=1):
-            self.c[key] = self.c.get(key, 0) + n
-
-        def gauge(self, key, value):
-            pass
-
-        def error(self, msg):
-            pass
-
     rng = np.random.default_rng(5)
     ev = window(rng, [line_pose(200, 200, 100.0, 0.0)], 0, 300_000)
     svc = Counts()
