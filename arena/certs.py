@@ -2,7 +2,9 @@
 Zenoh over TLS with mutual authentication (mTLS) and user/password authentication.
 
 Everything is made by the system ``openssl`` binary (present on every Linux), so no extra Python
-package is needed. Output folder ``DIR`` (created; existing files are kept unless ``--force``)::
+package is needed. Output folder ``DIR`` (created; existing files are kept unless ``--force``, but
+a host certificate naming other addresses than ``--hosts`` now gives, or other uses than an explicit
+``--server-only`` asks for, is made again with the same CA, and a line on stderr names the host)::
 
     ca.pem  ca.key                 the lab CA (keep ca.key on the admin machine only)
     <host>.pem  <host>.key         one certificate per host: CN = host name, subjectAltName =
@@ -37,7 +39,8 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["CertError", "HostSpec", "parse_hosts", "make_ca", "make_host_cert", "make_users", "register"]
+__all__ = ["CertError", "CertInfo", "HostSpec", "allows_client_auth", "make_ca", "make_host_cert", "make_users",
+           "parse_hosts", "read_certificate", "register"]
 
 DEFAULT_USERS = ("router", "edge", "tracker", "bridge", "groundtruth", "operator", "viewer")
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9.-]{0,62}$")
@@ -60,6 +63,10 @@ class HostSpec:
         """The ``subjectAltName`` value: every IP, the host name and every extra DNS name."""
         names = [f"IP:{ip}" for ip in self.ips] + [f"DNS:{d}" for d in dict.fromkeys([self.name, *self.dns])]
         return ",".join(names)
+
+    def names(self) -> frozenset[str]:
+        """The subjectAltName entries as :attr:`CertInfo.names` gives them (``IP:...``, ``DNS:...``)."""
+        return frozenset(n if n.startswith("IP:") else "DNS:" + n[4:].lower() for n in self.san().split(","))
 
 
 def parse_hosts(text: str) -> list[HostSpec]:
@@ -94,6 +101,139 @@ def parse_hosts(text: str) -> list[HostSpec]:
     if not hosts:
         raise CertError("--hosts: no host given (e.g. --hosts router=198.18.0.1,camera=198.18.0.2)")
     return hosts
+
+
+# ------------------------------------------------------------------------------ reading a certificate
+#: extendedKeyUsage purposes by their DER-encoded object identifier
+_EKU_NAMES = {bytes.fromhex("2b06010505070301"): "serverAuth", bytes.fromhex("2b06010505070302"): "clientAuth",
+              bytes.fromhex("551d2500"): "anyExtendedKeyUsage"}
+_OID_EKU, _OID_SAN = bytes.fromhex("551d25"), bytes.fromhex("551d11")
+
+
+@dataclass(frozen=True)
+class CertInfo:
+    """What :func:`read_certificate` reads from a certificate: its subjectAltName entries
+    (``IP:<address>``, ``DNS:<name>`` in lower case) and its extendedKeyUsage purposes
+    (``serverAuth``, ``clientAuth``, ``anyExtendedKeyUsage`` or a dotted OID), None when it
+    has no extendedKeyUsage (then TLS allows every use)."""
+
+    names: frozenset[str]
+    uses: frozenset[str] | None
+
+
+def _der(data: bytes, pos: int, end: int) -> tuple[int, int, int]:
+    """The DER element at ``pos``: (tag, start of its value, end of its value)."""
+    if pos + 2 > end:
+        raise CertError("truncated certificate (DER)")
+    tag, n = data[pos], data[pos + 1]
+    pos += 2
+    if n & 0x80:
+        k = n & 0x7F
+        if not 1 <= k <= 4 or pos + k > end:
+            raise CertError("bad length in the certificate (DER)")
+        n, pos = int.from_bytes(data[pos:pos + k], "big"), pos + k
+    if pos + n > end:
+        raise CertError("truncated certificate (DER)")
+    return tag, pos, pos + n
+
+
+def _children(data: bytes, start: int, end: int) -> list[tuple[int, int, int]]:
+    out, pos = [], start
+    while pos < end:
+        item = _der(data, pos, end)
+        out.append(item)
+        pos = item[2]
+    return out
+
+
+def _oid_text(raw: bytes) -> str:
+    parts, v = [], 0
+    for b in raw:
+        v = (v << 7) | (b & 0x7F)
+        if not b & 0x80:
+            parts.append(v)
+            v = 0
+    if not parts:
+        return ""
+    first = min(parts[0] // 40, 2)
+    return ".".join(str(x) for x in (first, parts[0] - 40 * first, *parts[1:]))
+
+
+def read_certificate(pem: bytes | str) -> CertInfo:
+    """The subjectAltName and extendedKeyUsage of the first certificate of ``pem`` (PEM text or
+    DER bytes), read with the standard library alone; :class:`CertError` if it is not one."""
+    import base64
+    import binascii
+
+    raw = pem.encode() if isinstance(pem, str) else pem
+    m = re.search(rb"-----BEGIN CERTIFICATE-----(.+?)-----END CERTIFICATE-----", raw, re.S)
+    if m:
+        try:
+            raw = base64.b64decode(b"".join(m.group(1).split()), validate=True)
+        except (binascii.Error, ValueError):
+            raise CertError("not a PEM certificate (bad base64)") from None
+    elif b"-----BEGIN" in raw:
+        raise CertError("no CERTIFICATE block in the PEM file")
+    tag, start, end = _der(raw, 0, len(raw))
+    if tag != 0x30:
+        raise CertError("not an X.509 certificate")
+    tag, start, end = _der(raw, start, end)          # tbsCertificate
+    if tag != 0x30:
+        raise CertError("not an X.509 certificate")
+    names: set[str] = set()
+    uses: set[str] | None = None
+    for tag, s, e in _children(raw, start, end):
+        if tag != 0xA3:                               # [3] extensions
+            continue
+        ext = _children(raw, s, e)
+        if not ext or ext[0][0] != 0x30:
+            continue
+        # Extension ::= SEQUENCE {extnID OID, critical BOOLEAN (optional), extnValue OCTET STRING}
+        for _, xs, xe in _children(raw, ext[0][1], ext[0][2]):
+            parts = _children(raw, xs, xe)
+            if len(parts) < 2 or parts[0][0] != 0x06 or parts[-1][0] != 0x04:
+                continue
+            oid, value = raw[parts[0][1]:parts[0][2]], parts[-1]
+            if oid not in (_OID_EKU, _OID_SAN):
+                continue
+            inner = _der(raw, value[1], value[2])       # SEQUENCE OF ...
+            items = _children(raw, inner[1], inner[2])
+            if oid == _OID_EKU:
+                uses = {_EKU_NAMES.get(raw[a:b], _oid_text(raw[a:b])) for t, a, b in items if t == 0x06}
+            else:
+                for t, a, b in items:
+                    if t == 0x82:                       # [2] dNSName
+                        names.add("DNS:" + raw[a:b].decode("ascii", "replace").lower())
+                    elif t == 0x87 and b - a in (4, 16):  # [7] iPAddress
+                        names.add(f"IP:{ipaddress.ip_address(raw[a:b])}")
+    return CertInfo(frozenset(names), None if uses is None else frozenset(uses))
+
+
+def allows_client_auth(info: CertInfo) -> bool:
+    """Whether TLS accepts the certificate as a client's (mTLS): no extendedKeyUsage, or one
+    with clientAuth (or anyExtendedKeyUsage)."""
+    return info.uses is None or bool(info.uses & {"clientAuth", "anyExtendedKeyUsage"})
+
+
+_USES = {True: frozenset({"serverAuth"}), False: frozenset({"serverAuth", "clientAuth"})}
+
+
+def _differs(cert: Path, host: HostSpec, server_only: bool | None) -> str | None:
+    """Why the existing ``cert`` is not what ``host`` asks for now (its addresses, or its uses
+    when ``server_only`` is not None), None when it is."""
+    try:
+        info = read_certificate(cert.read_bytes())
+    except (CertError, OSError) as exc:
+        return f"cannot be read ({exc})"
+    want = host.names()
+    if info.names != want:
+        return (f"names {', '.join(sorted(info.names)) or 'no address'}, but --hosts now gives "
+                f"{', '.join(sorted(want))}")
+    if server_only is not None and info.uses != _USES[server_only]:
+        def text(uses):
+            return "every use (no extendedKeyUsage)" if uses is None else "+".join(sorted(uses))
+        return f"has extendedKeyUsage {text(info.uses)}, but --server-only now asks for {text(_USES[server_only])}"
+    return None
 
 
 def _openssl(*args: str, cwd: Path | None = None) -> None:
@@ -229,9 +369,15 @@ def make_users(out: Path, users: list[str], force: bool = False) -> dict[str, st
 
 
 def make_lab_pki(out: Path, hosts: list[HostSpec], users: list[str], days: int = 825,
-                 force: bool = False, server_only: tuple[str, ...] | list[str] = ()) -> list[Path]:
+                 force: bool = False, server_only: tuple[str, ...] | list[str] = (),
+                 remake_uses: bool = True) -> list[Path]:
     """Make (or complete) a lab's PKI in ``out`` (created with mode 0700); returns the files
-    written. Hosts named in ``server_only`` get a serverAuth-only certificate."""
+    written. Hosts named in ``server_only`` get a serverAuth-only certificate.
+
+    An existing host certificate is kept unless it names other addresses than ``hosts`` gives
+    (its subjectAltName), or (with ``remake_uses``) has other uses than ``server_only`` asks
+    for: then that host's certificate and key are made again, signed by the same CA, and one
+    line on stderr says which host and why (its new files must go to that host)."""
     _private_folder(out)
     written: list[Path] = []
     have_pem, have_key = (out / "ca.pem").exists(), (out / "ca.key").exists()
@@ -246,7 +392,14 @@ def make_lab_pki(out: Path, hosts: list[HostSpec], users: list[str], days: int =
         written += make_ca(out)
     for host in hosts:
         cert = out / f"{host.name}.pem"
-        if force or not cert.exists() or cert.stat().st_size == 0 or not (out / f"{host.name}.key").exists():
+        make = force or not cert.exists() or cert.stat().st_size == 0 or not (out / f"{host.name}.key").exists()
+        if not make:
+            why = _differs(cert, host, (host.name in server_only) if remake_uses else None)
+            if why:
+                print(f"arena certs: {cert.name} {why}: making {host.name}.pem and {host.name}.key again "
+                      f"(same CA; copy both to {host.name})", file=sys.stderr)
+                make = True
+        if make:
             written += make_host_cert(out, host, days, server_only=host.name in server_only)
     stale = sorted(p.name for p in old_certs - set(written)) if new_ca and have_pem else []
     if stale:
@@ -273,7 +426,9 @@ def register(sub) -> None:
                "  arena certs pki --hosts router2=198.18.0.11      # a second router of a mesh (a client of router)\n"
                "  openssl x509 -in pki/camera.pem -noout -text   # inspect one\n"
                "Then see docs/deployment.md (which files go to which host).")
-    p.add_argument("dir", metavar="DIR", help="output folder (created; existing CA and certificates are reused)")
+    p.add_argument("dir", metavar="DIR",
+                   help="output folder (created; the existing CA is reused, and each host certificate that "
+                        "still names the host's addresses)")
     p.add_argument("--hosts", required=True, metavar="NAME=ADDR[+ADDR],...",
                    help="hosts to certify: name (certificate CN) and IP addresses / DNS names")
     p.add_argument("--users", default=",".join(DEFAULT_USERS), metavar="USER,...",
@@ -303,12 +458,14 @@ def run(args: argparse.Namespace) -> int:
             if unknown:
                 raise CertError(f"--server-only: {', '.join(unknown)} not among --hosts "
                                 f"({', '.join(h.name for h in hosts)})")
-        written = make_lab_pki(out, hosts, users, args.days, args.force, server_only)
+        # an existing certificate's uses change only when --server-only is given (not by its default)
+        written = make_lab_pki(out, hosts, users, args.days, args.force, server_only,
+                               remake_uses=args.server_only is not None)
     except (CertError, OSError) as exc:
         print(f"arena certs: {exc}", file=sys.stderr)
         return 2
     for path in written:
         print(path)
     if not written:
-        print(f"nothing to do: every certificate already exists in {out} (--force replaces them)")
+        print(f"nothing to do: every certificate already exists in {out} as asked (--force replaces them)")
     return 0

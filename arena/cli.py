@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING
 
 from arena import __version__
 from arena.clitools import exit_on_session_error, fail, formatter, seconds, session_or_exit
-from arena.session import SessionError, add_zenoh_arguments
+from arena.config import LEASE_MS_RANGE
+from arena.session import SessionError, add_zenoh_arguments, lease_ms
 
 # The parser is built for every command (`arena track` too): what only `status` and `watch` use
 # (the message codec, msgpack, the key space) is imported when they run.
@@ -62,7 +63,8 @@ def _register_router(sub) -> None:
                    help="other routers to connect to (mesh), repeatable")
     p.add_argument("--zenoh-config", metavar="JSON5", default=None,
                    help="Zenoh config for TLS, user/password and access control (see deploy/)")
-    p.add_argument("--lease-ms", type=int, default=None, help="link lease in ms (Zenoh default 10000)")
+    p.add_argument("--lease-ms", type=lease_ms, default=None,
+                   help=f"link lease in ms, {LEASE_MS_RANGE[0]}-{LEASE_MS_RANGE[1]} (Zenoh default 10000)")
     p.add_argument("--name", default=None,
                    help="name in arena status (default: <hostname>-<port of the first listen endpoint>)")
     p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)
@@ -85,10 +87,18 @@ def _run_router(args) -> int:
                    "`arena certs` has both) or neither")
     if user:
         settings.user, settings.password = user, password
+    with exit_on_session_error("arena router"):
+        problem = _dial_certificate_problem(settings)
+    if problem:
+        raise fail(f"arena router: {problem}")
     if not settings.listen:
         settings.listen = json.loads(settings.to_zenoh_config().get_json("listen/endpoints") or "[]")
         if isinstance(settings.listen, dict):  # per-mode values
             settings.listen = settings.listen.get("router") or []
+    if not settings.connect and args.zenoh_config:  # the file's own, so that the line below names them
+        from arena.session import own_endpoints
+
+        settings.connect = own_endpoints(settings.to_zenoh_config(), "router")
     import re
     import socket
 
@@ -110,6 +120,42 @@ def _run_router(args) -> int:
     except KeyboardInterrupt:
         pass
     return 0
+
+
+def _dial_certificate_problem(settings) -> str | None:
+    """Why the router of ``settings`` cannot dial its TLS/QUIC endpoints with mTLS, or None: the
+    certificate it presents (``transport/link/tls/connect_certificate``) lacks clientAuth in its
+    extendedKeyUsage (`arena certs` makes the host ``router`` serverAuth-only by default), so the
+    router dialled refuses it as a client certificate and Zenoh retries forever without a word."""
+    from pathlib import Path
+
+    from arena.certs import CertError, allows_client_auth, read_certificate
+    from arena.session import own_endpoints
+
+    conf = settings.to_zenoh_config()
+
+    def get(path: str):
+        try:
+            return json.loads(conf.get_json(path))
+        except Exception:  # an unset path
+            return None
+
+    dialled = [e for e in own_endpoints(conf, "router") if e.startswith(("tls/", "quic/"))]
+    cert = get("transport/link/tls/connect_certificate")
+    if not dialled or not get("transport/link/tls/enable_mtls") or not isinstance(cert, str) or not cert:
+        return None
+    try:
+        info = read_certificate(Path(cert).read_bytes())
+    except (OSError, CertError):  # Zenoh says what is wrong with an unreadable certificate itself
+        return None
+    if allows_client_auth(info):
+        return None
+    host = Path(cert).stem
+    return (f"it dials {', '.join(dialled)} with mTLS presenting {cert} (transport/link/tls/connect_certificate), "
+            f"whose extendedKeyUsage is {'+'.join(sorted(info.uses or ()))} without clientAuth: the router it "
+            f"dials refuses it as a client certificate, and this one would retry forever. Make that certificate "
+            f"with clientAuth: `arena certs PKI --hosts {host}=ADDR --server-only none` (or --server-only naming "
+            f"only the routers that dial none), or present another host certificate that has clientAuth")
 
 
 def _router_links_printer(session):

@@ -35,6 +35,9 @@ __all__ = [
     "ZenohSettings",
     "MODES",
     "DEFAULT_ROUTER",
+    "DefaultEndpoints",
+    "LEASE_MS_RANGE",
+    "dial_port_zero",
     "load_lab_config",
     "parse_lab_config",
     "NAMED_COLOURS",
@@ -94,6 +97,22 @@ MODES = ("peer", "client", "router")
 #: where a client connects unless told otherwise (``arena router``'s default endpoint)
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 _ENDPOINT_RE = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
+_PORT_RE = re.compile(r"^(?:tcp|udp|tls|quic|ws)/.*:(\d+)(?:[?#].*)?$")
+#: link lease bounds, ms (``lease_ms``, ``--lease-ms``): Zenoh's default is 10000; below 100 ms a busy
+#: host's keep-alives are late and links drop; above 10 minutes a dead service is never noticed
+LEASE_MS_RANGE = (100, 600_000)
+
+
+class DefaultEndpoints(list):
+    """The built-in connect endpoints (``[DEFAULT_ROUTER]``), given by nobody: a Zenoh config
+    file's own connect endpoints (``config_file``, ``-c``) replace them, explicit ones do not."""
+
+
+def dial_port_zero(endpoint: str) -> bool:
+    """Whether Zenoh ``endpoint`` (``tcp/HOST:PORT``, ...) has port 0: listening there takes a
+    free port the OS chooses, but dialling it reaches nothing."""
+    m = _PORT_RE.match(endpoint)
+    return bool(m) and int(m.group(1)) == 0
 
 
 class ConfigError(ValueError):
@@ -162,7 +181,7 @@ class ZenohSettings:
     a ``zenoh.Config``). See ``docs/deployment.md``."""
 
     mode: str = "client"
-    connect: list[str] = field(default_factory=lambda: [DEFAULT_ROUTER])
+    connect: list[str] = field(default_factory=lambda: DefaultEndpoints([DEFAULT_ROUTER]))
     listen: list[str] = field(default_factory=list)
     multicast_scouting: bool = False
     lease_ms: int | None = None
@@ -625,20 +644,28 @@ def _parse_arena(a: _Reader) -> ArenaConfig:
 
 
 def _parse_zenoh(z: _Reader) -> ZenohSettings:
-    """The ``[zenoh]`` table; without ``connect`` a client or peer connects to :data:`DEFAULT_ROUTER`
-    (a router connects to nothing)."""
+    """The ``[zenoh]`` table; without ``connect`` a client or peer connects to the ``config_file``'s
+    connect endpoints if it has some, else to :data:`DEFAULT_ROUTER` (a router connects to nothing).
+
+    Port 0: a ``connect`` endpoint with port 0 is refused (nothing can be dialled there); a
+    ``listen`` endpoint with port 0 is kept: the OS gives a free port, which other peers learn
+    through the router (gossip), as with Zenoh's own peer default ``tcp/[::]:0``; a client cannot
+    be told it, so a router must listen on a fixed port."""
     z.unknown(("mode", "connect", "listen", "multicast_scouting", "lease_ms", "config_file", "tls", "user", "password"))
     tls = z.table.get("tls", {})
     if not isinstance(tls, dict) or not all(isinstance(v, (str, bool)) for v in tls.values()):
         raise z._err("tls", "a table of strings (file paths) and booleans", tls)
     mode = z.str("mode", "client", choices=MODES)
     connect = z.str_list("connect", _ENDPOINT_RE, "endpoints like 'tcp/192.0.2.1:7447'")
+    for e in connect:
+        if dial_port_zero(e):
+            raise z._err("connect", "endpoints with the port a router listens on (port 0 cannot be dialled)", e)
     return ZenohSettings(
         mode=mode,
-        connect=connect or ([] if mode == "router" else [DEFAULT_ROUTER]),
+        connect=connect or ([] if mode == "router" else DefaultEndpoints([DEFAULT_ROUTER])),
         listen=z.str_list("listen", _ENDPOINT_RE, "endpoints like 'tcp/0.0.0.0:7447'"),
         multicast_scouting=z.bool("multicast_scouting", False),
-        lease_ms=z.int("lease_ms", None, lo=100),
+        lease_ms=z.int("lease_ms", None, lo=LEASE_MS_RANGE[0], hi=LEASE_MS_RANGE[1]),
         config_file=z.str("config_file", None),
         tls=dict(tls),
         user=z.str("user", None),
@@ -681,10 +708,25 @@ def _parse_cameras(root: _Reader, base_dir: Path | None,
                          f"[0, {size_m[1]:g}] m", list(nadir))
         cameras.append(CameraConfig(name=name, width=r.int("width", 640, lo=1, hi=65535),
                                     height=r.int("height", 480, lo=1, hi=65535),
-                                    source=r.str("source", None), calibration=calib,
+                                    source=_dialled(r, "source", r.str("source", None)), calibration=calib,
                                     calibration_file=calib_file,
                                     camera_height_m=camera_h, nadir_m=nadir))
     return cameras
+
+
+def _dialled(r: _Reader, key: str, url: str | None) -> str | None:
+    """``url`` (a source the service dials: ``tcp://HOST:PORT``, ``http://...``, ``socket://...``)
+    unless it names port 0, which reaches nothing: then a ConfigError naming the key."""
+    if url and "://" in url:
+        from urllib.parse import urlsplit
+
+        try:
+            port = urlsplit(url).port
+        except ValueError:  # a port out of range: the service that opens it says so
+            port = None
+        if port == 0:
+            raise r._err(key, "a URL with the port its server listens on (port 0 cannot be dialled)", url)
+    return url
 
 
 def _parse_webcam(w: _Reader, base_dir: Path | None) -> WebcamConfig:
@@ -694,6 +736,7 @@ def _parse_webcam(w: _Reader, base_dir: Path | None) -> WebcamConfig:
         src = str(src)
     if not isinstance(src, str):
         raise w._err("source", "a device index, file path or URL", src)
+    _dialled(w, "source", src)
     calib, calib_file = _calibration(w, base_dir)
     return WebcamConfig(source=src, fps=w.float("fps", 24.0, positive=True), calibration=calib,
                         calibration_file=calib_file,
@@ -720,7 +763,7 @@ def _parse_robots(root: _Reader) -> list[RobotConfig]:
         hsv = _hsv_range(r)
         robots.append(RobotConfig(
             name=name, color_rgb=_colour(r, "color", (20, 20, 20)), marker_id=marker,
-            serial_url=r.str("serial_url", None),
+            serial_url=_dialled(r, "serial_url", r.str("serial_url", None)),
             sprocket_diameter_m=r.float("sprocket_diameter_m", 0.038, positive=True),
             track_width_m=r.float("track_width_m", 0.09, positive=True),
             counts_per_rev=r.int("counts_per_rev", 1807, lo=1),

@@ -37,12 +37,13 @@ import dataclasses
 
 import zenoh
 
-from arena.config import DEFAULT_ROUTER, MODES, ConfigError, LabConfig, ZenohSettings, load_lab_config
+from arena.config import (DEFAULT_ROUTER, LEASE_MS_RANGE, MODES, ConfigError, DefaultEndpoints, LabConfig,
+                          ZenohSettings, dial_port_zero, load_lab_config)
 
 log = logging.getLogger("arena.session")
 
-__all__ = ["DEFAULT_ROUTER", "MODES", "SessionError", "ZenohSettings", "add_zenoh_arguments", "load_lab_from_args",
-           "open_session", "parse_cfg", "resolve_settings", "to_zenoh_config"]
+__all__ = ["DEFAULT_ROUTER", "MODES", "SessionError", "ZenohSettings", "add_zenoh_arguments", "lease_ms",
+           "load_lab_from_args", "open_session", "own_endpoints", "parse_cfg", "resolve_settings", "to_zenoh_config"]
 
 
 class SessionError(RuntimeError):
@@ -74,7 +75,8 @@ def to_zenoh_config(settings: ZenohSettings) -> zenoh.Config:
             raise SessionError(f"Zenoh setting {key}={value!r} was refused: {exc}") from None
 
     put("mode", settings.mode)
-    if settings.connect:
+    if settings.connect and not (isinstance(settings.connect, DefaultEndpoints) and settings.config_file
+                                 and own_endpoints(conf, settings.mode)):  # the file's own replace the default
         put("connect/endpoints", list(settings.connect))
     if settings.listen:
         put("listen/endpoints", list(settings.listen))
@@ -111,6 +113,46 @@ def to_zenoh_config(settings: ZenohSettings) -> zenoh.Config:
 # The method form, for code holding settings: arena.config defines the dataclass without Zenoh
 # (its pure-core contract forbids importing it), so the Zenoh half is attached here.
 ZenohSettings.to_zenoh_config = to_zenoh_config  # type: ignore[attr-defined]
+
+
+def _get(conf: zenoh.Config, path: str):
+    """The value at ``path`` of ``conf`` (None when unset)."""
+    try:
+        return json.loads(conf.get_json(path))
+    except Exception:  # an unset path
+        return None
+
+
+def own_endpoints(conf: zenoh.Config, mode: str, key: str = "connect") -> list[str]:
+    """``conf``'s own ``connect`` (or ``listen``) endpoints for ``mode`` (a Zenoh config may give
+    them per mode), as strings; empty when it gives none."""
+    eps = _get(conf, f"{key}/endpoints") or []
+    if isinstance(eps, dict):
+        eps = eps.get(mode) or []
+    return [str(e) for e in eps] if isinstance(eps, list) else []
+
+
+def _credentials(settings: ZenohSettings) -> str:
+    """The credentials ``settings`` present, for an error message (never the password): the user
+    of user/password authentication and the TLS files, or "" when none is configured."""
+    try:
+        conf = to_zenoh_config(settings)
+    except SessionError:
+        return ""
+    parts = []
+    user = settings.user or _get(conf, "transport/auth/usrpwd/user")
+    if user:
+        parts.append(f"user {user!r} and its password (user/password authentication; the password is not shown)")
+    tls = {k: _get(conf, f"transport/link/tls/{k}") for k in ("root_ca_certificate", "connect_certificate",
+                                                                 "enable_mtls")}
+    if any(e.startswith(("tls/", "quic/")) for e in own_endpoints(conf, settings.mode)):
+        files = [f"CA {tls['root_ca_certificate']}" if tls["root_ca_certificate"] else "",
+                 f"certificate {tls['connect_certificate']}" if tls["enable_mtls"] and tls["connect_certificate"]
+                 else ""]
+        parts.append("TLS (" + (", ".join(f for f in files if f) or "no CA or certificate set") + ": the router's "
+                     "certificate must be of that CA and name the address dialled; with mTLS this host's must be "
+                     "of the router's CA and have clientAuth)")
+    return "; ".join(parts)
 
 
 def parse_cfg(item: str) -> tuple[str, str]:
@@ -154,8 +196,22 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
                         "e.g. --cfg 'transport/unicast/max_links:2'")
     g.add_argument("--multicast-scouting", action="store_true", default=None,
                    help="enable multicast scouting (off by default)")
-    g.add_argument("--lease-ms", type=int, default=None,
-                   help="link lease: a dead peer is noticed after this long (Zenoh default 10000)")
+    g.add_argument("--lease-ms", type=lease_ms, default=None,
+                   help=f"link lease, ms ({LEASE_MS_RANGE[0]}-{LEASE_MS_RANGE[1]}): a dead peer is noticed "
+                        "after this long (Zenoh default 10000)")
+
+
+def lease_ms(text: str) -> int:
+    """The argparse ``type`` of ``--lease-ms``: an integer in :data:`arena.config.LEASE_MS_RANGE`,
+    the bounds the lab config's ``lease_ms`` has."""
+    lo, hi = LEASE_MS_RANGE
+    try:
+        v = int(text)
+    except ValueError:
+        v = None
+    if v is None or not lo <= v <= hi:
+        raise argparse.ArgumentTypeError(f"expected a lease in milliseconds, an integer in [{lo}, {hi}], got {text!r}")
+    return v
 
 
 def _split(value: str | None) -> list[str] | None:
@@ -178,7 +234,8 @@ def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | No
     s = ZenohSettings()
     if lab is not None:  # a copy: the lab's own settings are not changed below
         z = lab.zenoh
-        s = dataclasses.replace(z, connect=list(z.connect), listen=list(z.listen), tls=dict(z.tls), cfg=list(z.cfg))
+        s = dataclasses.replace(z, connect=type(z.connect)(z.connect), listen=list(z.listen), tls=dict(z.tls),
+                                cfg=list(z.cfg))
     env = os.environ
     if env.get("ARENA_ZENOH_MODE"):
         s.mode = env["ARENA_ZENOH_MODE"]
@@ -215,6 +272,15 @@ def resolve_settings(args: argparse.Namespace | None = None, lab: LabConfig | No
                 parse_cfg(item)  # a malformed one is named now, before anything is opened
     if s.mode not in MODES:
         raise SessionError(f"Zenoh mode {s.mode!r} is not one of {', '.join(MODES)}")
+    if isinstance(s.connect, DefaultEndpoints) and s.config_file:
+        # nobody gave connect endpoints: the Zenoh config file's own (-c FILE) replace the default
+        own = own_endpoints(to_zenoh_config(dataclasses.replace(s, connect=[])), s.mode)
+        if own:
+            s.connect = own
+    zero = [e for e in s.connect if dial_port_zero(e)]
+    if zero:
+        raise SessionError(f"connect endpoint {zero[0]}: port 0 cannot be dialled; give the port the router "
+                           f"listens on (e.g. {DEFAULT_ROUTER})")
     return s
 
 
@@ -245,9 +311,12 @@ def open_session(args: argparse.Namespace | ZenohSettings | None = None, lab: La
             break
         except Exception as exc:  # zenoh.ZError
             if deadline is not None and time.monotonic() >= deadline:
+                creds = _credentials(settings)
                 raise SessionError(
                     f"cannot open Zenoh ({settings.describe()}): {str(exc).split(' at ')[0].rstrip(' !.')}. "
-                    "Is a router running there (`arena router`)? Check --connect/--mode or the lab config.",
+                    "Is a router running there (`arena router`)? "
+                    + (f"If one is, it may refuse this host's credentials: {creds}. " if creds else "")
+                    + "Check --connect/--mode or the lab config.",
                     exit_code=1) from None
             log.warning("waiting for Zenoh (%s): %s", settings.describe(), str(exc).split(" at ")[0])
             time.sleep(delay)
