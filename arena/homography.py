@@ -13,8 +13,10 @@ from one mat corner. The calibration JSON::
      "camera_height_m": 2.45,          # optional: lens height above the mats, m
      "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}    # >= 4 points
 
-Other keys (e.g. ``camera``, ``floor_points``, a second list of points on the floor) are kept
-by whoever writes them and ignored here unless asked for by ``key``.
+Besides those, the keys the project's tools write (:data:`CALIBRATION_KEYS`: ``nadir_m``,
+``nadir_px``, ``camera``, ``floor_points``, a second list of points on the floor) are allowed;
+:func:`check_calibration_keys` refuses any other (a typo such as ``camera_heigth_m`` would
+otherwise fall back to a default without a word), as the lab config refuses unknown keys.
 """
 
 from __future__ import annotations
@@ -26,7 +28,11 @@ import cv2
 import numpy as np
 
 __all__ = ["CalibrationError", "fit_homography", "apply_homography", "calibration_points",
-           "read_calibration_json"]
+           "read_calibration_json", "check_calibration_keys", "CALIBRATION_KEYS"]
+
+#: Every top-level key of the calibration JSON, as read or written by the project's tools.
+CALIBRATION_KEYS = ("image_size", "points", "height_m", "camera_height_m", "nadir_m", "nadir_px", "camera",
+                    "floor_points")
 
 
 class CalibrationError(ValueError):
@@ -169,3 +175,17 @@ def read_calibration_json(path: str | Path):
         raise CalibrationError(f"{path}: calibration file not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CalibrationError(f"{path}: cannot read the calibration, not a readable JSON file ({exc})") from None
+
+
+def check_calibration_keys(cal: dict, source: str = "calibration") -> None:
+    """Refuse a key of the calibration dict ``cal`` not in :data:`CALIBRATION_KEYS` with a
+    :class:`CalibrationError` naming it (and the known key it is closest to, if any)."""
+    import difflib
+
+    extra = sorted(str(k) for k in cal if k not in CALIBRATION_KEYS)
+    if not extra:
+        return
+    close = difflib.get_close_matches(extra[0], CALIBRATION_KEYS, n=1, cutoff=0.7)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise CalibrationError(f"{source}: unknown key(s) {', '.join(repr(k)[:60] for k in extra[:5])}{hint}; "
+                           f"known keys: {', '.join(CALIBRATION_KEYS)}")

@@ -5,8 +5,11 @@ one mat corner, yaw counter-clockwise from +x). The calibration file is JSON::
 
     {"image_size": [w, h], "points": [{"pixel": [u, v], "arena_m": [x, y]}, ...]}
 
-with at least 4 points (no 3 of the first 4 collinear). The same dict is accepted inside a
-lab config's camera table (``arena.config.CameraConfig.calibration``). Optional keys:
+with at least 4 points (no 3 of the first 4 collinear), each pixel on the sensor or off it by
+less than the sensor's size (a point computed just out of view), and the arena points in metres (spanning under :data:`MAX_ARENA_SPAN_M`: more is cm or mm); a key not in
+:data:`arena.homography.CALIBRATION_KEYS` is refused (a typo would fall back to a default).
+The same dict is accepted inside a lab config's camera table
+(``arena.config.CameraConfig.calibration``). Optional keys:
 ``height_m`` (height above the mats of the plane the points were taken on, default 0),
 ``camera_height_m`` (height of the lens above the mats, m) and ``nadir_m`` (``[x, y]``, the
 arena point straight under the lens, m; or ``nadir_px``, its pixel), used for the parallax correction of robots seen
@@ -32,12 +35,14 @@ import cv2
 import numpy as np
 
 from arena.config import CAMERA_HEIGHT_RANGE_M, NADIR_MAX_ARENAS, nadir_distance_m
-from arena.homography import CalibrationError, apply_homography, calibration_points, fit_homography
+from arena.homography import (CalibrationError, apply_homography, calibration_points, check_calibration_keys,
+                              fit_homography)
 from arena.homography import read_calibration_json as _read_json
 
 __all__ = ["Calibration", "CalibrationError", "load_calibration", "camera_calibration", "CameraPose",
            "FALLBACK_CAMERA_HEIGHT_M", "DEFAULT_ROBOT_HEIGHT_M", "lens_focal_px", "CAMERA_HEIGHT_RANGE_M",
-           "MAX_PLANE_HEIGHT_M", "MAX_PINHOLE_FOV_DEG", "PIXEL_PITCH_RANGE_UM"]
+           "MAX_PLANE_HEIGHT_M", "MAX_PINHOLE_FOV_DEG", "PIXEL_PITCH_RANGE_UM", "MAX_ARENA_SPAN_M",
+           "lens_height_disagreement", "LENS_HEIGHT_TOLERANCE", "check_extent"]
 
 #: Lens height assumed when neither the command line, the lab file nor the calibration gives
 #: one, m: a ceiling camera under a room's ~2.5 m ceiling. The tracker warns when it uses it.
@@ -56,6 +61,10 @@ MAX_PLANE_HEIGHT_M = 2.0
 #: lenses cover ~120-130 deg; a focal length giving more is a fisheye (not a pinhole) or a wrong
 #: unit (e.g. 0.3 mm for 3 mm: 174 deg on a 640x480 sensor of 15 µm pixels).
 MAX_PINHOLE_FOV_DEG = 150.0
+#: Widest span of a calibration's arena points, m: a lab arena is a few metres (mats of 1.83 m),
+#: a sports hall's floor under one camera a few tens; 50 m and more is a unit slip (cm or mm for m:
+#: a 1.83 m mat typed in cm spans 183), which would put every position 100x off.
+MAX_ARENA_SPAN_M = 50.0
 #: Pixel pitch of real image and event sensors, µm (IMX636: 4.86, Prophesee Gen3 VGA: 15, DAVIS346:
 #: 18.5; phone sensors ~1; none beyond ~40).
 PIXEL_PITCH_RANGE_UM = (0.5, 50.0)
@@ -110,13 +119,17 @@ class Calibration:
 
     @classmethod
     def from_points(cls, pixels, arena_m, image_size: tuple[int, int]) -> "Calibration":
-        """Fit the homography to >= 4 pairs of (u, v) px and (x, y) m (least squares)."""
+        """Fit the homography to >= 4 pairs of (u, v) px and (x, y) m (least squares).
+
+        Points computed rather than seen (e.g. a model's projection of mat corners out of view)
+        may lie off the sensor here; ``arena calibrate --points`` refuses them, and the calibration
+        file (:meth:`from_dict`) refuses those off by more than the sensor's size (:func:`check_extent`)."""
         px = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
         am = np.asarray(arena_m, dtype=np.float64).reshape(-1, 2)
         w, h = (int(image_size[0]), int(image_size[1]))
-        H = fit_homography(px, am)
         if w <= 0 or h <= 0:
             raise CalibrationError(f"image_size must be positive [w, h] px, got {list(image_size)}")
+        H = fit_homography(px, am)
         return cls(H=H, image_size=(w, h), pixels=px, arena_m=am)
 
     @classmethod
@@ -129,9 +142,14 @@ class Calibration:
                 and all(_real(v) and float(v) == int(v) and 0 < v <= 65535 for v in size)):
             raise CalibrationError(f"{source}: image_size: expected [w, h], the sensor size in px (integers "
                                    f"1..65535), got {_show(size) if 'image_size' in d else 'nothing (key missing)'}")
+        check_calibration_keys(d, source)
         _check_points(d, source)
         try:
             px, am = calibration_points(d)
+            # a file may hold points computed rather than seen (a model's projection of mat corners
+            # just out of view): off the sensor by up to its own size is kept, farther is a typo
+            check_extent(px, am, (int(size[0]), int(size[1])), lambda i: f"points[{i}]",
+                         slack_px=float(max(int(size[0]), int(size[1]))))
             cal = cls.from_points(px, am, (int(size[0]), int(size[1])))
         except (ValueError, TypeError) as exc:
             raise CalibrationError(f"{source}: {exc}") from None
@@ -335,6 +353,28 @@ def _height_range() -> str:
     return f"[{CAMERA_HEIGHT_RANGE_M[0]:g}, {CAMERA_HEIGHT_RANGE_M[1]:g}]"
 
 
+def check_extent(px: np.ndarray, am: np.ndarray, size: tuple[int, int], name,
+                 hint: str = "check the point and the sensor size", slack_px: float = 0.5) -> None:
+    """Refuse, with a :class:`CalibrationError`, a pixel point off the sensor (``size`` (w, h)
+    px, by more than ``slack_px``: half a pixel, either pixel convention, for points typed or
+    found in an image) and arena points spanning more than
+    :data:`MAX_ARENA_SPAN_M` (a unit slip); ``name(i)`` names point ``i``, ``hint`` says what
+    to do. Non-finite values are left to the fitter."""
+    w, h = size
+    for i, (u, v) in enumerate(px):
+        if (math.isfinite(u) and math.isfinite(v)
+                and not (-slack_px <= u <= w + slack_px and -slack_px <= v <= h + slack_px)):
+            far = f" by more than {slack_px:g} px" if slack_px > 1 else ""
+            raise CalibrationError(f"{name(i)}: pixel ({u:g}, {v:g}) is outside the {w}x{h} px sensor{far} "
+                                   f"(u 0-{w}, v 0-{h}); {hint}")
+    fin = am[np.isfinite(am).all(1)]
+    if len(fin):
+        span = fin.max(0) - fin.min(0)
+        if float(span.max()) > MAX_ARENA_SPAN_M:
+            raise CalibrationError(f"the arena points span {span[0]:g} x {span[1]:g} m: are these in cm? arena "
+                                   f"coordinates are metres (a lab arena spans under {MAX_ARENA_SPAN_M:g} m)")
+
+
 def _check_points(d: dict, source: str) -> None:
     """The ``points`` list of a calibration dict, every error naming its key (``points[2].pixel``)."""
     pts = d.get("points")
@@ -378,6 +418,25 @@ def lens_focal_px(focal_length_mm: float, pixel_pitch_um: float, image_size: tup
             f"{int(image_size[0])}x{int(image_size[1])} px sensor: no lens the pinhole model stands for (at most "
             f"{MAX_PINHOLE_FOV_DEG:g} deg, i.e. >= {f_min:.2f} mm here); check the unit (mm) and the lens's data sheet")
     return f_px
+
+
+#: Relative difference between the lens's height estimate and a measured height beyond which
+#: they disagree: a lens's nominal focal length is good to ~5 %, the pinhole model without
+#: distortion and the homography's scale at the centre to a few % more; 20 % is a wrong lens
+#: value (focal length, pixel pitch, sensor binning) or a wrong measurement.
+LENS_HEIGHT_TOLERANCE = 0.2
+
+
+def lens_height_disagreement(estimated_m: float, measured_m: float,
+                             tolerance: float = LENS_HEIGHT_TOLERANCE) -> str | None:
+    """A warning when the lens's height estimate and the measured height differ by more than
+    ``tolerance`` of the measured one (None when they agree); the measured height is the one used."""
+    diff = abs(estimated_m - measured_m) / measured_m
+    if not diff > tolerance:
+        return None
+    return (f"warning: the lens gives the camera {estimated_m:.2f} m above the mats but --camera-height-m is "
+            f"{measured_m:.2f} m ({100 * diff:.0f} % apart); using the measured {measured_m:.2f} m. Check the "
+            "focal length, pixel pitch and the measurement (lens to mats)")
 
 
 def camera_calibration(cam, source: str = "lab config") -> Calibration:

@@ -285,8 +285,12 @@ def run_offline(args, lab=None) -> int:
         fleet_size = len(lab.robots) or None
     w, h = cal.image_size
     opts = {"width": w, "height": h} if Path(args.input).suffix.lower() in (".csv", ".npy", ".npz") else {}
+    try:   # a 0-byte file has no events in any format (a RAW reader would complain of its header)
+        zero_bytes = Path(args.input).is_file() and Path(args.input).stat().st_size == 0
+    except OSError:
+        zero_bytes = False
     try:
-        reader = iter_events(args.input, **opts)
+        reader = _NoEvents() if zero_bytes else iter_events(args.input, **opts)
     except TypeError:  # this format takes no size option
         reader = iter_events(args.input)
     except (FormatError, OSError) as exc:
@@ -302,7 +306,7 @@ def run_offline(args, lab=None) -> int:
         slicer = Slicer(slice_us)
     except ValueError as exc:
         raise fail(f"arena track: --slice-ms: {exc}") from None
-    n_rows = n_slices = 0
+    n_rows = n_slices = n_events = 0
     t0 = time.perf_counter()
     try:
         with reader, open(args.tracks_out, "w", newline="") as fh:
@@ -313,17 +317,38 @@ def run_offline(args, lab=None) -> int:
             for t_end, ev in iter_slices(reader, slice_us, slicer=slicer):
                 n_rows += writer.write(pipe.push(ev, t_end))
                 n_slices += 1
+                n_events += len(ev)
     except (FormatError, OSError) as exc:
         raise fail(f"arena track: {exc}") from None
     except ValueError as exc:  # events outside the calibrated sensor
         raise fail(f"arena track: {args.input}: {exc}") from None
     dt = time.perf_counter() - t0
+    if n_events == 0:   # as `arena convert`: 0 events is a valid (empty) output, exit 0, said clearly
+        print(f"arena track: warning: {args.input} has no events"
+              f"{' (0-byte file)' if zero_bytes else ''}: no tracks, {args.tracks_out} has only its header; "
+              "check the file (a recording of a still scene under steady light has none)", file=sys.stderr)
+        return 0
     print(f"{args.tracker} tracker, {args.detector} detector: {n_slices} slices, {n_rows} track rows -> "
           f"{args.tracks_out} ({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice); "
           f"{slicer.late} late event(s) kept in the slice open when they came (as the edge does)"
           + (f", {slicer.skipped_gaps} gap(s) over {slicer.max_gap_slices} slices skipped" if slicer.skipped_gaps
              else ""), file=sys.stderr)
     return 0
+
+
+class _NoEvents:
+    """The event reader of a 0-byte file: no chunks, no sensor size."""
+
+    width = height = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+    def __iter__(self):
+        return iter(())
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -402,7 +427,8 @@ def _xy_arg(text: str) -> tuple[float, float]:
 def _camera_geometry(args, cal) -> list[str]:
     """Put the lens height and nadir (given, or estimated from the lens) into ``cal``; returns
     the lines to print."""
-    from tracker.calibration import FALLBACK_CAMERA_HEIGHT_M, CalibrationError, lens_focal_px
+    from tracker.calibration import (FALLBACK_CAMERA_HEIGHT_M, CalibrationError, lens_focal_px,
+                                     lens_height_disagreement)
 
     notes = []
     lens = (args.focal_length_mm, args.pixel_pitch_um)
@@ -422,6 +448,10 @@ def _camera_geometry(args, cal) -> list[str]:
                      f"({pose.nadir_m[0]:.3f}, {pose.nadir_m[1]:.3f}) m, tilt {pose.tilt_deg:.1f} deg"
                      + (f" (warning: the homography fits this focal length poorly, column ratio "
                         f"{pose.consistency:.3f}; check the lens values)" if pose.consistency < 0.95 else ""))
+        if height is not None:
+            disagreement = lens_height_disagreement(pose.camera_height_m, height)
+            if disagreement:
+                notes.append(disagreement)
         height = pose.camera_height_m if height is None else height
         nadir = pose.nadir_m if nadir is None else nadir
     try:
@@ -443,17 +473,23 @@ def run_calibrate(args) -> int:
     import cv2
     import numpy as np
 
-    from tracker.calibration import Calibration, CalibrationError, find_mat_corners, mat_points
+    from tracker.calibration import (MAX_ARENA_SPAN_M, Calibration, CalibrationError, check_extent, find_mat_corners,
+                                     mat_points)
 
     L = args.arena_size
     if not (L > 0 and math.isfinite(L)):
         raise fail(f"arena calibrate: --arena-size must be > 0 m, got {L}")
+    if L > MAX_ARENA_SPAN_M:
+        raise fail(f"arena calibrate: --arena-size {L:g}: is it in cm? the mat side is in metres (e.g. 1.83)")
     image = None
     try:
         if args.points:
             if not args.size:
                 raise fail("arena calibrate: --size WxH is required with --points")
-            cal = Calibration.from_points([p for p, _ in args.points], [a for _, a in args.points], args.size)
+            px, am = np.array([p for p, _ in args.points]), np.array([a for _, a in args.points])
+            check_extent(px.reshape(-1, 2), am.reshape(-1, 2), args.size,
+                         lambda i: f"--points {i + 1} ({_show_pair(args.points[i])})")
+            cal = Calibration.from_points(px, am, args.size)
         else:
             if args.image:
                 image = cv2.imread(args.image, cv2.IMREAD_GRAYSCALE)
@@ -472,7 +508,12 @@ def run_calibrate(args) -> int:
                         "sweeping a light over it, or calibrate from a webcam frame (--image)") from None
                 raise
 
-            cal = Calibration.from_points(corners, mat_points(L), (image.shape[1], image.shape[0]))
+            size = (image.shape[1], image.shape[0])
+            # as the calibration file's loader, so that `arena track` reads what this writes
+            check_extent(np.asarray(corners, np.float64), mat_points(L), size,
+                         lambda i: f"mat corner {i + 1} found", "the mat's corners must all be in view (or give "
+                                                                 "--points)")
+            cal = Calibration.from_points(corners, mat_points(L), size)
     except CalibrationError as exc:
         raise fail(f"arena calibrate: {exc}") from None
     notes = _camera_geometry(args, cal)
@@ -498,6 +539,11 @@ def run_calibrate(args) -> int:
     for line in notes:
         print(f"arena calibrate: {line}", file=sys.stderr)
     return 0
+
+
+def _show_pair(pair) -> str:
+    (u, v), (x, y) = pair
+    return f"{u:g},{v:g}:{x:g},{y:g}"
 
 
 def _event_corners(path: str, seconds: float):
