@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 USAGE = 2
 RUNTIME = 1
 
-__all__ = ["RUNTIME", "USAGE", "exit_on_session_error", "fail", "formatter", "session_or_exit"]
+__all__ = ["RUNTIME", "USAGE", "exit_on_session_error", "fail", "formatter", "number", "seconds", "session_or_exit"]
 
 
 def fail(message: str, code: int = USAGE) -> SystemExit:
@@ -71,6 +71,29 @@ def session_or_exit(settings_or_args: argparse.Namespace | ZenohSettings | None,
 
     with exit_on_session_error(prog, code), open_session(settings_or_args, lab=lab, wait_s=wait_s) as session:
         yield session
+
+
+def number(lo: float, hi: float, unit: str = "", *, integer: bool = False, lo_open: bool = False,
+           hi_open: bool = False, note: str = ""):
+    """An argparse ``type`` for a number in ``[lo, hi]`` (``lo_open``/``hi_open``: the bound is
+    excluded) with its ``unit``: NaN, infinities, other words and absurd values are a usage error
+    naming the range and unit (``note`` added after it, e.g. what 0 means). ``integer``: an int.
+    ``parse.range`` keeps (lo, hi, lo_open, hi_open, integer, description), so that a value from
+    elsewhere (a lab file) can be checked against the same range."""
+    fmt = (lambda v: str(int(v))) if integer else (lambda v: f"{v:g}")
+    rng = f"{'(' if lo_open else '['}{fmt(lo)}, {fmt(hi)}{')' if hi_open else ']'}"
+    what = f"{'an integer' if integer else 'a number'} in {rng}{' ' + unit if unit else ''}{note}"
+
+    def parse(text: str):
+        try:
+            v = int(text) if integer else float(text)
+        except ValueError:
+            v = math.nan
+        if not (math.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return v
+    parse.range = (lo, hi, lo_open, hi_open, integer, what)
+    return parse
 
 
 def seconds(lo: float = 0.0, hi: float = 600.0, *, lo_open: bool = True):

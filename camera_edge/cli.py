@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
 import sys
 
-from arena.clitools import fail, formatter
+from arena.clitools import fail, formatter, number, seconds
 from arena.codec_names import CODECS, DEFAULT_CODEC
 from arena.config import SERVICE_OPTIONS
 
@@ -36,14 +37,56 @@ Formats by extension: read .raw (EVT 2.0/2.1/3.0) .dat .aedat4 .csv .npy .npz;
 write .raw (EVT 3.0 or 2.0) .dat .aedat4 .csv .npz .npy."""
 
 
+#: Largest sensor side, px (= arena.formats.base.MAX_SENSOR_PX; not imported: the parser stays light).
+MAX_SENSOR_PX = 65535
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
-        if w <= 0 or h <= 0:
+        if not (1 <= w <= MAX_SENSOR_PX and 1 <= h <= MAX_SENSOR_PX):
             raise ValueError
         return w, h
     except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT in px, e.g. 1280x720; got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT in px, each 1-{MAX_SENSOR_PX}, e.g. 1280x720; "
+                                         f"got {text!r}") from None
+
+
+#: The physical range of each numeric option of ``arena edge`` (flag and ``[services.edge]`` key alike).
+EDGE_RANGES = {
+    "slice_ms": number(0.001, 1000.0, "ms of sensor time"),
+    "speed": number(0.0, 1000.0, "x real time", note=" (0 = as fast as possible)"),
+    "hot_learn_s": number(0.0, 600.0, "s", lo_open=True),
+    "roi_margin": number(0, 4096, "px", integer=True),
+    "denoise": number(1, 1_000_000, "µs", integer=True),
+    "queue": number(1, 10_000, "windows", integer=True),
+}
+#: Longest --duration of ``arena edge``, s (a week; leave it out to run until stopped).
+EDGE_DURATION_MAX_S = 7 * 86_400.0
+
+
+def _no_events(path: str) -> str | None:
+    """Why the event file ``path`` gives no event (``"no events in PATH (...)"``), or None when it
+    has one, or cannot be read (its reader then says why). Reads up to the first event only."""
+    import warnings
+
+    from arena.formats import FormatError, iter_events
+
+    try:
+        if os.path.getsize(path) == 0:
+            return f"no events in {path} (the file is empty, 0 bytes)"
+    except OSError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")   # the real read reports what it skips
+            with iter_events(path) as reader:
+                if any(chunk.size for chunk in reader):
+                    return None
+                invalid = reader.invalid
+    except (FormatError, OSError, ValueError):
+        return None
+    return f"no events in {path} ({f'{invalid} invalid events only' if invalid else 'a header without events'})"
 
 
 def register_convert(sub) -> None:
@@ -73,6 +116,16 @@ def run_convert(args) -> int:
     from camera_edge.convert import convert
 
     w, h = args.size or (None, None)
+    from pathlib import Path
+
+    from arena.formats import WRITE_EXTENSIONS
+    # the converter's own checks (same file, output format) come first; then: is there anything to convert?
+    src, dst = Path(args.input), Path(args.output)
+    empty = (_no_events(args.input) if src.is_file() and src.resolve() != dst.resolve()
+             and dst.suffix.lower() in WRITE_EXTENSIONS else None)
+    if empty:   # nothing to convert: an input error, and no empty output file
+        print(f"arena convert: {empty}; nothing written", file=sys.stderr)
+        return 2
     big = os.path.isfile(args.input) and os.path.getsize(args.input) > 64 << 20
     skipped: dict[str, int] = {}   # what the reader skipped, by unit (its SkippedData warnings)
 
@@ -118,25 +171,32 @@ def register_edge(sub) -> None:
     p.add_argument("--camera", default=None, help="camera name (key arena/events/<camera>; default cam0 or the "
                    "lab config's first camera)")
     p.add_argument("--list-devices", action="store_true", help="list attached event cameras and exit")
-    p.add_argument("--slice-ms", type=float, default=None, help="slice duration in ms of sensor time (default 10)")
+    p.add_argument("--slice-ms", type=EDGE_RANGES["slice_ms"], default=None,
+                   help="slice duration in ms of sensor time, 0.001-1000 (default 10)")
     p.add_argument("--codec", choices=CODECS, default=None,
                    help=f"window codec (default {DEFAULT_CODEC}, lossless; planes-zstd-ms/1 floors times to 1 ms)")
-    p.add_argument("--speed", type=float, default=None, help="file replay speed: 1 real time, 0 as fast as possible")
+    p.add_argument("--speed", type=EDGE_RANGES["speed"], default=None,
+                   help="file replay speed, 0-1000: 1 real time, 0 as fast as possible")
     p.add_argument("--loop", action="store_true", help="replay a file forever (times keep increasing)")
     f = p.add_argument_group("filters (each optional, in this order)")
     f.add_argument("--hot-pixels", metavar="learn|FILE", default=None,
                    help="drop hot pixels: learned over --hot-learn-s, or listed in FILE (x,y lines or .npy)")
-    f.add_argument("--hot-learn-s", type=float, default=None, help="learning time of hot pixels, s (default 2)")
+    f.add_argument("--hot-learn-s", type=EDGE_RANGES["hot_learn_s"], default=None,
+                   help="learning time of hot pixels, s, up to 600 (default 2)")
     f.add_argument("--hot-save", metavar="FILE", default=None,
                    help="with --hot-pixels learn: write the learnt hot pixels to FILE (x,y lines, or .npy), "
                         "to pass as --hot-pixels FILE next time")
     f.add_argument("--roi", metavar="lab|CALIB_JSON", default=None,
                    help="keep events inside the arena: the hull of the calibration points (lab: the lab camera's)")
-    f.add_argument("--roi-margin", type=int, default=None, help="grow the region of interest by PX (default 10)")
-    f.add_argument("--denoise", nargs="?", const=10_000, type=int, default=None, metavar="DT_US",
-                   help="background-activity filter: keep events with a neighbour within DT_US µs (default 10000)")
-    p.add_argument("--queue", type=int, default=None, help="windows queued before the oldest is dropped (default 32)")
-    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    f.add_argument("--roi-margin", type=EDGE_RANGES["roi_margin"], default=None,
+                   help="grow the region of interest by PX, 0-4096 (default 10)")
+    f.add_argument("--denoise", nargs="?", const=10_000, type=EDGE_RANGES["denoise"], default=None, metavar="DT_US",
+                   help="background-activity filter: keep events with a neighbour within DT_US µs, "
+                        "1-1000000 (default 10000)")
+    p.add_argument("--queue", type=EDGE_RANGES["queue"], default=None,
+                   help="windows queued before the oldest is dropped, 1-10000 (default 32)")
+    p.add_argument("--duration", type=seconds(0.0, EDGE_DURATION_MAX_S), default=None,
+                   help=f"stop after this many seconds, up to {EDGE_DURATION_MAX_S:g} (default: until stopped)")
     add_zenoh_arguments(p)
     p.set_defaults(func=run_edge_cli)
 
@@ -164,6 +224,14 @@ def _check_options(args) -> str | None:
         args.denoise = 10_000 if args.denoise else None
     if args.denoise is not None and (not isinstance(args.denoise, int) or args.denoise <= 0):
         return f"denoise must be a time window in µs > 0 (or true), got {args.denoise!r}"
+    for key, check in EDGE_RANGES.items():   # the flags were parsed by these; the lab file's values too
+        v = getattr(args, key, None)
+        if v is None:
+            continue
+        lo, hi, lo_open, hi_open, integer, what = check.range
+        ok = not isinstance(v, bool) and isinstance(v, (int, float)) and (not integer or isinstance(v, int))
+        if not (ok and math.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)):
+            return f"--{key.replace('_', '-')} ({key}) must be {what}, got {v!r}"
     if args.codec not in CODECS:
         return f"codec must be one of {', '.join(CODECS)}, got {args.codec!r}"
     if args.hot_save is not None and (not isinstance(args.hot_save, str) or args.hot_pixels != "learn"):
@@ -254,9 +322,6 @@ def run_edge_cli(args) -> int:
     if not source_url:
         print("arena edge: give a SOURCE (or --lab with a camera source); see --help", file=sys.stderr)
         return 2
-    if args.slice_ms <= 0 or args.speed < 0 or args.queue < 1:
-        print("arena edge: --slice-ms must be > 0, --speed >= 0, --queue >= 1", file=sys.stderr)
-        return 2
     opts: dict = {}
     if args.loop:
         if ":" in source_url.split("/")[0]:
@@ -265,6 +330,10 @@ def run_edge_cli(args) -> int:
         opts["loop"] = True
     if source_url.lower().startswith("tcp://") and cam is not None:
         opts.update(width=cam.width, height=cam.height)
+    empty = _no_events(source_url) if os.path.isfile(source_url) else None
+    if empty:   # a file with nothing to publish: say so before compiling and waiting for Zenoh
+        print(f"arena edge: {empty}", file=sys.stderr)
+        return 2
     try:
         source = open_source(source_url, speed=args.speed, **opts)
     except SourceError as exc:

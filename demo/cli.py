@@ -32,6 +32,10 @@ LIGHTING = ("full", "dimmed", "dark")
 #: On 2 cores the nine processes need about all of both, so when they compete (service start-up,
 #: mission start) the observers, which queue what they receive, are the ones that wait.
 OBSERVER_NICE = 10
+#: Longest --duration of the demo's missions, s (24 h).
+DURATION_MAX_S = 86_400.0
+#: Seeds are unsigned 32-bit integers (as ``arena sim --seed``).
+SEED_MAX = 2**32 - 1
 
 
 def register(subparsers) -> None:
@@ -185,11 +189,24 @@ def _usage_error(args) -> str | None:
     if not 1 <= args.robots <= 16:
         return "--robots must be between 1 and 16"
     if not 0.05 <= args.power <= 1.0:
-        return "--power must be in (0, 1], e.g. 1.0 or 0.5"
+        return f"--power must be a fraction of full power in [0.05, 1], e.g. 1.0 or 0.5; got {args.power}"
     if not (math.isfinite(args.duration) and args.duration > 0):
         return f"--duration must be a positive number of seconds, got {args.duration}"
     if not 0 <= args.observer_nice <= 19:
         return "--observer-nice must be in 0..19 (a process may only lower its priority)"
+    if args.duration > DURATION_MAX_S:
+        return f"--duration must be at most {DURATION_MAX_S:g} s (24 h) of missions, got {args.duration:g}"
+    if not 0 <= args.seed <= SEED_MAX:
+        return f"--seed must be an integer in 0..{SEED_MAX}, got {args.seed}"
+    if not 1 <= args.view_port <= 65535:
+        return f"--view-port must be a TCP port in 1..65535, got {args.view_port}"
+    out = getattr(args, "out", "runs")
+    if not str(out).strip():
+        return "--out is empty: give the parent folder of the run folder (default ./runs)"
+    existing = next((q for q in (Path(out), *Path(out).parents) if q.exists()), None)
+    if existing is not None and not existing.is_dir():
+        return (f"--out {out}: {existing} is a file, not a folder: give the parent folder of the run folder "
+                f"(default ./runs)")
     if not getattr(args, "prepare", False) and not getattr(args, "markers", False):
         return _colour_problem(args.robots)
     return None
@@ -900,10 +917,18 @@ def run_experiment(args: argparse.Namespace) -> int:
     """Run ``arena experiment``; returns the exit code."""
     from dataclasses import replace
 
-    from demo.experiment import PARTS, ExperimentError, StudyPlan, run_paper_study
+    from demo.experiment import PARTS, ExperimentError, StudyPlan, check_output_folder, run_paper_study
 
     if args.seconds is not None and not 0.5 <= args.seconds <= 120:
         print(f"arena experiment: --seconds must be 0.5-120 s per scenario, got {args.seconds:g}", file=sys.stderr)
+        return 2
+    if not 0 <= args.seed <= SEED_MAX:
+        print(f"arena experiment: --seed must be an integer in 0..{SEED_MAX}, got {args.seed}", file=sys.stderr)
+        return 2
+    try:
+        check_output_folder(args.out)   # before any run: '' would be the current folder
+    except ExperimentError as exc:
+        print(f"arena experiment: --out: {exc}", file=sys.stderr)
         return 2
     plan = None
     if args.seconds is not None:

@@ -241,12 +241,22 @@ def _score_row(rec: Recording, tracker: str, t_a_ms: float, **scenario) -> dict:
             "cpu_ms_per_update": round(1000 * secs / n_updates, 3) if n_updates else None}
 
 
+def check_output_folder(out) -> None:
+    """Raise :class:`ExperimentError` unless ``out`` names a folder to write the report into
+    (existing or not): not an empty path (which would be the current folder), not a file."""
+    if out is None or not str(out).strip():
+        raise ExperimentError("the output folder is an empty path: give a folder for the report (e.g. --out study/)")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise ExperimentError(f"the output folder {out} is an existing file, not a folder: give another path")
+
+
 def run_paper_study(out: Path, quick: bool = False, seed: int = 1, parts=PARTS,
                     progress: bool = True, plan: StudyPlan | None = None) -> Study:
     """Run the study and write ``out/report.md`` (+ plots, ``study.json``); returns the results.
 
     A step that raises is recorded in ``Study.failures`` (and the report) and the study goes on.
     """
+    check_output_folder(out)
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)

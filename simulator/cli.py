@@ -20,7 +20,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from urllib.parse import urlparse
 
-from arena.clitools import RUNTIME, fail, formatter
+from arena.clitools import RUNTIME, fail, formatter, number, seconds
 from arena.session import add_zenoh_arguments
 
 log = logging.getLogger("simulator")
@@ -53,6 +53,16 @@ Then point the services at the printed addresses, e.g.
 
 #: Blocks of simulated time handed to the camera per loop, s.
 BLOCK_S = 0.010
+#: Highest light flicker the simulator resolves, Hz: half its internal rate (DvsParams.step_us
+#: = 1000 µs, 1 kHz); mains lighting flickers at 100 or 120 Hz.
+FLICKER_MAX_HZ = 500.0
+#: Longest --duration, s (24 h; 0 runs until Ctrl-C).
+DURATION_MAX_S = 86_400.0
+#: Seeds are unsigned 32-bit integers.
+SEED_MAX = 2**32 - 1
+
+
+PORT = number(0, 65535, note=" (a TCP port; 0 = a free one)", integer=True)
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -68,7 +78,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The flags of ``arena sim`` (shared with ``python -m simulator``)."""
-    p.add_argument("--robots", type=int, default=None, metavar="N",
+    p.add_argument("--robots", type=number(0, MARKER_IDS, "robots", integer=True), default=None, metavar="N",
                    help="number of robots (default 4, or the lab config's robots)")
     p.add_argument("--autopilot", choices=("none",) + PATTERN_CHOICES, default="none",
                    help="built-in driver (default none: robots obey their firmware link)")
@@ -76,30 +86,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="without autopilot: start poses for missions driven by the bridge: circle "
                         "(bottom of a centred circle, heading +x), square (bottom-left corner of a "
                         "centred square), mixed (circles and squares alternately); default circle")
-    p.add_argument("--power", type=float, default=1.0,
+    p.add_argument("--power", type=number(0.05, 1.0, "of full power"), default=1.0,
                    help="autopilot motor power, fraction of full (the paper: 0.5 or 1.0)")
     p.add_argument("--lighting", choices=LIGHTING_CHOICES, default="full", help="ceiling lighting")
-    p.add_argument("--flicker", type=float, default=0.0, metavar="HZ",
-                   help="light flicker (100 or 120 Hz); simulates the full frame, not real time")
-    p.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")
+    p.add_argument("--flicker", type=number(0, FLICKER_MAX_HZ, "Hz", note=" (0 = off)"), default=0.0,
+                   metavar="HZ", help=f"light flicker, 0-{FLICKER_MAX_HZ:g} Hz (100 or 120 Hz: mains; default 0, "
+                                      "off); simulates the full frame, not real time")
+    p.add_argument("--seed", type=number(0, SEED_MAX, integer=True), default=0, help="seed of everything (default 0)")
     p.add_argument("--markers", action="store_true",
                    help="print ArUco markers (DICT_4X4_50, ids 0..N-1) on the shells (default: plain "
                         "coloured shells with a dark front window, as the lab's robots; a lab config's "
                         "marker_id values are kept either way)")
-    p.add_argument("--width", type=int, default=None, help="event sensor width, px (default 640)")
-    p.add_argument("--height", type=int, default=None, help="event sensor height, px (default 480)")
+    p.add_argument("--width", type=number(16, 4096, "px", integer=True), default=None,
+                   help="event sensor width, 16-4096 px (default 640)")
+    p.add_argument("--height", type=number(16, 4096, "px", integer=True), default=None,
+                   help="event sensor height, 16-4096 px (default 480)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback)")
-    p.add_argument("--camera-port", type=int, default=None,
+    p.add_argument("--camera-port", type=PORT, default=None,
                    help="EVT 3.0 TCP port (default 9000 or the lab's camera source; 0 = free port)")
-    p.add_argument("--webcam-port", type=int, default=8090, help="MJPEG HTTP port (0 = free port)")
+    p.add_argument("--webcam-port", type=PORT, default=8090, help="MJPEG HTTP port (0 = free port)")
     p.add_argument("--no-webcam", action="store_true", help="do not serve the webcam")
-    p.add_argument("--robot-base-port", type=int, default=9100,
+    p.add_argument("--robot-base-port", type=PORT, default=9100,
                    help="robot i listens on BASE+i (0 = free ports; lab socket:// URLs win)")
     p.add_argument("--no-robots", action="store_true", help="do not serve the robot firmware links")
-    p.add_argument("--telemetry-hz", type=float, default=50.0,
+    p.add_argument("--telemetry-hz", type=number(1, 1000, "Hz"), default=50.0,
                    help="robot telemetry rate, Hz (default 50, as the reference firmware over Bluetooth)")
-    p.add_argument("--duration", type=float, default=0.0, metavar="S",
-                   help="stop after S simulated seconds (default 0: until Ctrl-C)")
+    p.add_argument("--duration", type=seconds(0.0, DURATION_MAX_S, lo_open=False), default=0.0, metavar="S",
+                   help=f"stop after S simulated seconds, 0-{DURATION_MAX_S:g} (default 0: until Ctrl-C)")
     p.add_argument("--fast", action="store_true",
                    help="as fast as possible instead of real time (camera clients are not dropped)")
     p.add_argument("--record-raw", metavar="FILE", help="also write the events to a Prophesee RAW file")
@@ -109,7 +122,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--publish-truth", action="store_true",
                    help="publish exact poses on arena/sim/truth/<robot> over Zenoh (for live scoring "
                         "only; also status and liveliness as role sim); --truth-csv keeps every step")
-    p.add_argument("--publish-truth-hz", type=float, default=25.0, metavar="HZ",
+    p.add_argument("--publish-truth-hz", type=number(1, 100, "Hz"), default=25.0, metavar="HZ",
                    help="poses per second and robot published with --publish-truth, 1-100 (default 25: "
                         "a live error table's need, at a quarter of the CPU of every 10 ms block)")
     # --lab (robots, camera size, ports, Zenoh endpoints) and the Zenoh flags
@@ -177,27 +190,7 @@ def layout_poses(layout: str, n: int, arena_m: float) -> list[tuple[float, float
 
 
 def _check_args(args) -> None:
-    if args.robots is not None and not 0 <= args.robots <= 50:
-        raise fail(f"arena sim: --robots must be in 0..50, got {args.robots}")
-    if not 0.05 <= args.power <= 1.0:
-        raise fail(f"arena sim: --power is a fraction of full power in [0.05, 1], got {args.power}")
-    if not (math.isfinite(args.duration) and args.duration >= 0):
-        raise fail(f"arena sim: --duration must be a finite number of seconds >= 0 (0: until Ctrl-C), "
-                   f"got {args.duration}")
-    if not 1 <= args.telemetry_hz <= 1000:
-        raise fail(f"arena sim: --telemetry-hz must be in 1..1000, got {args.telemetry_hz}")
-    for name in ("camera_port", "webcam_port", "robot_base_port"):
-        v = getattr(args, name)
-        if v is not None and not 0 <= v <= 65535:
-            raise fail(f"arena sim: --{name.replace('_', '-')} must be a TCP port 0..65535, got {v}")
-    for name in ("width", "height"):
-        v = getattr(args, name)
-        if v is not None and not 16 <= v <= 4096:
-            raise fail(f"arena sim: --{name} must be 16..4096 px, got {v}")
-    if not 1 <= args.publish_truth_hz <= 100:
-        raise fail(f"arena sim: --publish-truth-hz must be 1-100, got {args.publish_truth_hz}")
-    if not (math.isfinite(args.flicker) and args.flicker >= 0):
-        raise fail(f"arena sim: --flicker must be a finite frequency >= 0 Hz (0: off), got {args.flicker}")
+    """Checks across flags and of the output paths (each number's range is its parser type's)."""
     for flag in ("calibration_out", "truth_csv", "record_raw"):   # checked before anything starts
         path = getattr(args, flag, None)
         if path:
@@ -221,6 +214,9 @@ def run(args) -> int:
     from simulator.world import World
 
     specs, opts = _robots_from_args(args)
+    if not args.no_robots and args.robot_base_port and args.robot_base_port + len(specs) - 1 > 65535:
+        raise fail(f"arena sim: --robot-base-port {args.robot_base_port} + {len(specs)} robots goes beyond TCP "
+                   f"port 65535; give at most {65536 - len(specs)} (or 0: free ports)")
     if args.autopilot == "none" and args.layout:
         specs = [dataclasses.replace(spec, start=pose)
                  for spec, pose in zip(specs, layout_poses(args.layout, len(specs), 1.83))]

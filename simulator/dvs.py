@@ -81,7 +81,8 @@ class DvsParams:
             emulator fed by a 500 Hz render would be (2: a robot at full speed moves 0.9 mm,
             0.2 px, in 2 ms); the photoreceptor, thresholds and event times run every step.
             1 = traced every step. The trace is the simulator's largest cost.
-        flicker_hz: ceiling light flicker (0 = off, 100 or 120 typical), Hz.
+        flicker_hz: ceiling light flicker (0 = off, 100 or 120 typical), Hz; at most half
+            the internal rate (``0.5e6 / step_us``: 500 Hz at the default step).
         flicker_depth: relative modulation depth of the flicker.
     """
 
@@ -131,7 +132,9 @@ class DvsParams:
         check_number(own, "hot_rate_hz", self.hot_rate_hz, 0, unit="Hz")
         check_number(own, "step_us", self.step_us, 1, 1000, integer=True, unit="µs (internal rate >= 1 kHz)")
         check_number(own, "trace_every", self.trace_every, 1, 10, integer=True, unit="steps")
-        check_number(own, "flicker_hz", self.flicker_hz, 0, unit="Hz")
+        # sampled once a step: a flicker beyond half the internal rate would alias to a false one
+        check_number(own, "flicker_hz", self.flicker_hz, 0, 0.5e6 / self.step_us,
+                     unit=f"Hz (at most half the internal rate, 1e6/step_us = {1e6 / self.step_us:g} Hz)")
         check_number(own, "flicker_depth", self.flicker_depth, 0, 1, hi_open=True)
 
 

@@ -116,3 +116,93 @@ def test_edge_reads_its_camera_from_the_lab_config(tmp_path):
                                        '[services.edge]\nslice_ms = 5\n')
     r = _run("edge", "--lab", str(tmp_path / "lab.toml"))
     assert r.returncode == 2 and "nowhere.aedat4" in r.stderr and "Traceback" not in r.stderr
+
+
+# An outsider's report: empty inputs and absurd numbers were accepted. In-process (arena.cli.main),
+# parse errors and tiny files only.
+def _main(*args: str) -> int:
+    from arena.cli import main
+
+    try:
+        return main(list(args))
+    except SystemExit as exc:   # argparse's usage errors
+        return exc.code
+
+
+def _empty_files(tmp_path) -> list:
+    """A 0-byte file of each readable format, and one with a valid header but no event."""
+    from arena.events import empty_events
+
+    files = []
+    for ext in ("raw", "dat", "aedat4", "csv", "npy", "npz"):
+        (tmp_path / f"zero.{ext}").write_bytes(b"")
+        write_events(tmp_path / f"header.{ext}", empty_events(0), 640, 480)
+        files += [tmp_path / f"zero.{ext}", tmp_path / f"header.{ext}"]
+    return files
+
+
+def test_convert_of_a_file_without_events_says_so_and_writes_nothing(tmp_path, capsys):
+    for src in _empty_files(tmp_path):
+        out = tmp_path / f"out-{src.name}.npz"
+        code = _main("convert", str(src), str(out))
+        err = capsys.readouterr().err
+        assert code == 2, (src.name, err)
+        assert f"no events in {src}" in err and "nothing written" in err and "Traceback" not in err, err
+        assert not out.exists(), src.name
+    (tmp_path / "bad.csv").write_text("1,2,3,4\n")   # polarity 3: its only event is invalid
+    assert _main("convert", str(tmp_path / "bad.csv"), str(tmp_path / "bad.npz")) == 2
+    assert "1 invalid events only" in capsys.readouterr().err and not (tmp_path / "bad.npz").exists()
+    (tmp_path / "one.csv").write_text("1,2,1,4\n")   # one event: converted as before
+    assert _main("convert", str(tmp_path / "one.csv"), str(tmp_path / "one.npz")) == 0
+    assert read_events(tmp_path / "one.npz")[0].size == 1
+
+
+def test_edge_on_a_file_without_events_says_so_before_waiting_for_zenoh(tmp_path, capsys):
+    for src in _empty_files(tmp_path):
+        code = _main("edge", str(src), "--camera", "c", "--duration", "1")
+        err = capsys.readouterr().err
+        assert code == 2, (src.name, err)
+        assert f"arena edge: no events in {src}" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["--slice-ms=nan"], "[0.001, 1000] ms"),
+    (["--slice-ms=1e9"], "[0.001, 1000] ms"),
+    (["--slice-ms=0"], "[0.001, 1000] ms"),
+    (["--speed=inf"], "[0, 1000] x real time"),
+    (["--speed=nan"], "[0, 1000] x real time"),
+    (["--speed=-1"], "[0, 1000] x real time"),
+    (["--hot-learn-s=nan"], "(0, 600] s"),
+    (["--hot-learn-s=-1"], "(0, 600] s"),
+    (["--roi-margin=-3"], "[0, 4096] px"),
+    (["--denoise=0"], "[1, 1000000] µs"),
+    (["--denoise=-5"], "[1, 1000000] µs"),
+    (["--queue=0"], "[1, 10000] windows"),
+    (["--queue=1e9"], "[1, 10000] windows"),
+    (["--duration=nan"], "seconds in (0, 604800]"),
+    (["--duration=-1"], "seconds in (0, 604800]"),
+])
+def test_edge_absurd_numbers_are_usage_errors_naming_range_and_unit(args, expected, capsys):
+    code = _main("edge", "x.raw", "--camera", "c", *args)
+    err = capsys.readouterr().err
+    assert code == 2 and expected in err and args[0].split("=")[0] in err, err
+
+
+def test_edge_lab_values_get_the_same_ranges():
+    import argparse
+
+    from camera_edge.cli import LAB_OPTIONS, _apply_lab_options
+
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    assert "--slice-ms (slice_ms) must be a number in [0.001, 1000] ms" in _apply_lab_options(args, {"slice_ms": 1e9})
+    args = argparse.Namespace(**{k: None for k in LAB_OPTIONS})
+    assert "--queue (queue) must be an integer in [1, 10000]" in _apply_lab_options(args, {"queue": 10**9})
+
+
+@pytest.mark.parametrize("size", ["70000x480", "640x0", "nanxnan"])
+def test_convert_size_beyond_any_sensor_is_a_usage_error(size, capsys, tmp_path):
+    (tmp_path / "one.csv").write_text("1,2,1,4\n")
+    code = _main("convert", str(tmp_path / "one.csv"), str(tmp_path / "one.npz"), "--size", size)
+    err = capsys.readouterr().err
+    assert code == 2 and "each 1-65535" in err, err
+    assert not (tmp_path / "one.npz").exists()
