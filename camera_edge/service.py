@@ -32,6 +32,8 @@ from camera_edge.pipeline import EdgePipeline, Window
 from camera_edge.sources import EventSource, FileSource
 
 log = logging.getLogger("camera_edge.service")
+#: how long a new window publisher waits for the router to report an existing subscriber, s
+MATCH_WAIT_S = 1.0
 
 
 class WindowPublisher:
@@ -44,6 +46,12 @@ class WindowPublisher:
                                               express=True)
         self._matching = bool(self._pub.matching_status.matching)
         self._listener = self._pub.declare_matching_listener(self._on_matching)
+        # the router tells a new publisher of the subscribers it already has within a round trip
+        # (longer on a busy host): without this wait, the first windows of a replay were counted
+        # unsubscribed and not sent although a tracker was listening
+        deadline = time.monotonic() + MATCH_WAIT_S
+        while not self._matching and time.monotonic() < deadline:
+            time.sleep(0.01)
         self._q: collections.deque[Window] = collections.deque()
         self._size = queue_size
         self._batch = max(1, queue_size // 4)
