@@ -49,7 +49,7 @@ LONG_RUN = GROUPS["messages-codec"] + GROUPS["files-camera"] + GROUPS["files-aed
 
 @pytest.mark.slow
 def test_fuzz_longer_run_with_another_seed():
-    _fuzz(LONG_RUN, examples=600, seed=12345, timeout=400)
+    _fuzz(LONG_RUN, examples=250, seed=12345, timeout=400)
 
 
 def test_the_address_space_cap_turns_a_big_allocation_into_memory_error():

@@ -122,7 +122,7 @@ def test_neighbour_counts_follow_the_window(bg_hz):
 @pytest.mark.parametrize("bg_hz", [0.5, 2.0])
 @pytest.mark.parametrize("eps,min_samples", [(5.88, 21), (5.88, 14), (4.0, 9), (7.3, 40)])
 def test_incremental_labels_equal_full_grid_dbscan_every_slice(bg_hz, eps, min_samples):
-    ev = noisy_stream(int(eps * 10) + min_samples, bg_hz)
+    ev = noisy_stream(int(eps * 10) + min_samples, bg_hz, seconds=0.4)   # 3 window turnovers, 37 slices
     pw = PixelWindow(W, H, 100_000)
     idx = NeighbourIndex(W, H, eps, noise_cell=24)
     attached = False

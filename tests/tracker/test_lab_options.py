@@ -3,12 +3,16 @@ runs (offline and live), a flag wins over it, and a wrong value is a clear error
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import os
 import subprocess
 import threading
 import time
+from types import SimpleNamespace
+from unittest import mock
 
 import pytest
 
@@ -32,15 +36,24 @@ def recording(tmp_path_factory):
     return d
 
 
-def _track(d, *args, calibration: bool = True) -> tuple[subprocess.CompletedProcess, list[dict]]:
+def _track(d, *args, calibration: bool = True) -> tuple[SimpleNamespace, list[dict]]:
+    """``arena track --input`` in this process (its own parser, run and exit codes; a subprocess
+    would spend most of its time importing and loading kernels): its exit status and stderr."""
+    from arena.cli import main
+
     out = d / "tracks.csv"
     if out.exists():
         out.unlink()
     cal = ["--calibration", str(d / "calib.json")] if calibration else []
-    r = subprocess.run(arena_cmd("track", "--input", str(d / "rec.raw"), *cal, "--tracks-out", str(out), *args),
-                       capture_output=True, text=True, timeout=240, env=ENV)
+    err = io.StringIO()
+    with mock.patch.dict(os.environ), contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        os.environ.pop("ARENA_LAB", None)
+        try:
+            rc = main(["track", "--input", str(d / "rec.raw"), *cal, "--tracks-out", str(out), *args])
+        except SystemExit as exc:
+            rc = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
     rows = list(csv.DictReader(out.open())) if out.exists() else []
-    return r, rows
+    return SimpleNamespace(returncode=rc, stderr=err.getvalue()), rows
 
 
 def test_lab_tracker_idtrack_runs_idtrack_and_a_flag_wins(recording, tmp_path):
