@@ -323,11 +323,10 @@ def run_offline(args, lab=None) -> int:
     except ValueError as exc:  # events outside the calibrated sensor
         raise fail(f"arena track: {args.input}: {exc}") from None
     dt = time.perf_counter() - t0
-    if n_events == 0:   # as `arena convert`: 0 events is a valid (empty) output, exit 0, said clearly
-        print(f"arena track: warning: {args.input} has no events"
-              f"{' (0-byte file)' if zero_bytes else ''}: no tracks, {args.tracks_out} has only its header; "
-              "check the file (a recording of a still scene under steady light has none)", file=sys.stderr)
-        return 0
+    if n_events == 0:   # an input error, as `arena convert` and `arena edge` say of the same file
+        raise fail(f"arena track: no events in {args.input}{' (0-byte file)' if zero_bytes else ''}: no tracks, "
+                   f"{args.tracks_out} has only its header; check the file (a recording of a still scene under "
+                   "steady light has none)")
     print(f"{args.tracker} tracker, {args.detector} detector: {n_slices} slices, {n_rows} track rows -> "
           f"{args.tracks_out} ({dt:.1f} s, {1e3 * dt / max(1, n_slices):.2f} ms per slice); "
           f"{slicer.late} late event(s) kept in the slice open when they came (as the edge does)"

@@ -154,7 +154,10 @@ def _track(tmp_path, name, content):
     args = SimpleNamespace(input=str(inp), calibration=str(tmp_path / "cal.json"), tracks_out=str(out),
                            tracker="fleet", detector="default", backend="grid", slice_ms=10.0, accumulation_ms=100.0,
                            chassis_cm=10.0, robot_height_cm=3.2, camera_height_m=2.45, fleet_size=None)
-    return run_offline(args), out
+    try:
+        return run_offline(args), out
+    except SystemExit as exc:
+        return exc.code, out
 
 
 @pytest.mark.parametrize("name,content", [("empty.raw", b""), ("hdr.csv", b"t,x,y,p\n"),
@@ -163,7 +166,7 @@ def _track(tmp_path, name, content):
 def test_track_says_the_file_has_no_events(tmp_path, capsys, name, content):
     rc, out = _track(tmp_path, name, content)
     err = capsys.readouterr().err
-    assert rc == 0   # as `arena convert` (0 events: exit 0, said)
-    assert f"{tmp_path / name} has no events" in err
+    assert rc == 2   # an input error, as `arena convert` and `arena edge` on the same file
+    assert f"arena track: no events in {tmp_path / name}" in err
     assert ("(0-byte file)" in err) == (isinstance(content, bytes) and not content)
     assert out.read_text().count("\n") == 1 and out.read_text().startswith("t_us,track_id")
