@@ -99,8 +99,8 @@ def register(subparsers) -> None:
                         "the camera has seen the robot move")
     m.add_argument("--control", choices=("paper", "closed"), default="paper",
                    help="paper: encoder PID only; closed: follow the robot's own track (default paper)")
-    m.add_argument("--start-in", type=float, default=None, metavar="S",
-                   help="start in S seconds (several robots start together)")
+    m.add_argument("--start-in", type=seconds(0.0, 600.0, lo_open=False), default=None, metavar="S",
+                   help="start in S seconds, up to 600 (several robots start together)")
     _client_args(m)
     m.set_defaults(func=run_mission)
 

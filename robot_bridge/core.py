@@ -39,6 +39,11 @@ from .odometry import Odometry, WheelGeometry
 log = logging.getLogger("robot_bridge")
 
 
+#: Latest start of a mission after its command, s: a fleet starts together a few seconds ahead;
+#: a start hours away is a clock mix-up, and the robot would stay "busy" until stopped.
+MAX_START_DELAY_S = 600.0
+
+
 class CommandError(Exception):
     """A command that cannot be carried out; ``str()`` is the reply's error text."""
 
@@ -242,6 +247,10 @@ class RobotHandle:
         Raises :class:`CommandError`."""
         params = dict(cmd.params)
         params.pop("start_pose", None)
+        if cmd.start_ns is not None and cmd.start_ns - time.time_ns() > MAX_START_DELAY_S * 1e9:
+            raise CommandError(f"bad parameter: start_ns is {(cmd.start_ns - time.time_ns()) / 1e9:.3g} s from now; "
+                               f"a mission starts at most {MAX_START_DELAY_S:g} s ahead (start_ns is this host's "
+                               "wall clock, ns since 1970: a value from another clock?)")
         try:
             mission_speed(cmd.power, cmd.speed_mps, self.geometry.max_speed_mps)
             check_mission(cmd.mission, params, self.limits)

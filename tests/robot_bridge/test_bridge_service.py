@@ -238,6 +238,18 @@ def test_missions_start_together_at_start_ns(lab):
     assert lab["bridge"].handles["r1"].mission_log is not None
 
 
+def test_a_start_far_ahead_is_refused_and_the_robot_stays_free(lab):
+    """A red team's mission with ``start_ns = 2**63 - 1`` was accepted: the robot stayed busy
+    (for 292 years) until stopped. A start more than 600 s ahead is a bad parameter."""
+    s, world = lab["session"], lab["world"]
+    replies = ask(s, "r1", "mission", circle(start_ns=2**63 - 1))
+    assert [r.ok for r in replies] == [False]
+    assert "start_ns is" in replies[0].error and "at most 600 s ahead" in replies[0].error
+    assert lab["bridge"].handles["r1"].runner is None
+    later = time.time_ns() + int(599e9)              # 10 minutes ahead is still a start together
+    assert lab["bridge"].handles["r1"].check(circle(start_ns=later)) is None
+
+
 def test_shutdown_stops_every_robot_before_ending_any_mission_or_closing_any_link(lab):
     # closing a link joins its reader and ending a mission writes its log; stopping robot by
     # robot left the last one driving for 0.35 s per robot (over 1 s under load). All robots
