@@ -49,9 +49,13 @@ def register(sub) -> None:
                    help="also answer requests whose Host header is NAME (a DNS name of this host or a proxy's; "
                         "repeatable). Others than the address served on, localhost and 127.0.0.1 get 421")
     p.add_argument("--max-connections", type=int, default=64,
-                   help="connections served at once, pages and event streams (default 64; more get 503)")
+                   help="connections served at once, pages and event streams (default 64); when all are open, a\n"
+                        "new one replaces the one waiting longest for its request, and gets 503 only if all are busy")
     p.add_argument("--idle-timeout", type=float, default=30.0, metavar="S",
                    help="close a connection that sends or reads nothing for S seconds (default 30)")
+    p.add_argument("--header-timeout", type=float, default=10.0, metavar="S",
+                   help="close a connection that has not sent a whole request (line and headers) S seconds\n"
+                        "after it was accepted or answered, however slowly it trickles (default 10)")
     add_zenoh_arguments(p)
     p.set_defaults(func=run)
 
@@ -110,15 +114,17 @@ def run(args) -> int:
     if args.accumulate_ms <= 0 or args.rate <= 0:
         print("arena view: --accumulate-ms and --rate must be > 0", file=sys.stderr)
         return 2
-    if args.max_connections < 1 or not args.idle_timeout > 0:
-        print("arena view: --max-connections must be >= 1 and --idle-timeout > 0", file=sys.stderr)
+    if args.max_connections < 1 or not args.idle_timeout > 0 or not args.header_timeout > 0:
+        print("arena view: --max-connections must be >= 1 and --idle-timeout > 0 and --header-timeout > 0",
+              file=sys.stderr)
         return 2
     state = ViewerState(camera=camera, accumulate_us=int(args.accumulate_ms * 1000), H_arena_to_px=H,
                         arena_size_m=arena_size, robot_size_m=robot_size)
     try:
         server = ViewerServer(state, args.host, args.port, period_s=1.0 / args.rate,
                               allow_hosts=[h for item in args.allow_host for h in item.split(",")],
-                              max_connections=args.max_connections, idle_timeout_s=args.idle_timeout)
+                              max_connections=args.max_connections, idle_timeout_s=args.idle_timeout,
+                              header_timeout_s=args.header_timeout)
     except OSError as exc:
         print(f"arena view: cannot serve on {args.host}:{args.port}: {exc.strerror or exc}"
               " (is another viewer running? try --port 0)", file=sys.stderr)
@@ -133,7 +139,10 @@ def run(args) -> int:
             svc.on_tick(lambda s: (s.gauge("clients", server.clients), s.gauge("tracks", state.track_count()),
                                    s.gauge("bad", state.counts["bad"]), s.gauge("bad_keys", state.counts["bad_keys"]),
                                    s.gauge("refused_host", server.refused["host"]),
-                                   s.gauge("refused_busy", server.refused["busy"])))
+                                   s.gauge("refused_busy", server.refused["busy"]),
+                                   s.gauge("refused_slow", server.refused["slow"]),
+                                   s.gauge("evicted_connections", server.refused["evicted"]),
+                                   s.gauge("evicted_entries", state.counts["evicted"])))
             thread.start()
             print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
             try:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -96,6 +96,14 @@ class ViewerState:
     once it is named), its entry moves to that key. Each named track's ``error_m`` compares the
     robot's ground-truth pose with the track interpolated at that pose's stamp, on the clock
     ``gt_clock`` (see :func:`timed_error`). ``clock``: monotonic seconds (tests pass their own).
+
+    Bounds whatever the publishers send: at most ``max_tracks`` tracks, and as many ground-truth
+    robots, telemetry robots and service statuses, are kept (beyond that the least recently
+    updated goes, counted in ``counts["evicted"]``); each update costs the same however many are
+    kept. The event image is at most ``max_image_side`` px wide and high: a larger sensor is
+    shown downsampled by the smallest integer factor that fits (``image.scale`` in the
+    snapshot; the overlay stays in sensor px), so a window declaring a 65535 x 65535 px sensor
+    costs no more memory than a real one.
     """
 
     def __init__(self, camera: str | None = None, accumulate_us: int = 100_000,
@@ -103,6 +111,7 @@ class ViewerState:
                  robot_size_m: tuple[float, float] = (0.10, 0.10), telemetry_len: int = 200,
                  track_timeout_s: float = 3.0, status_timeout_s: float = 5.0,
                  max_windows: int = 1000, max_events: int = 4_000_000, gt_clock: str = "auto",
+                 max_tracks: int = 200, max_image_side: int = 2048,
                  clock: Callable[[], float] = time.monotonic):
         self.camera = camera
         self.accumulate_us = int(accumulate_us)
@@ -115,6 +124,9 @@ class ViewerState:
         if gt_clock not in ("auto", "sensor", "host"):
             raise ViewerConfigError(f"gt_clock must be 'auto', 'sensor' or 'host', got {gt_clock!r}")
         self.gt_clock = gt_clock
+        if max_tracks < 1 or max_image_side < 1:
+            raise ViewerConfigError("max_tracks and max_image_side must be >= 1")
+        self.max_tracks, self.max_image_side = int(max_tracks), int(max_image_side)
         self._now = clock
         self._lock = threading.Lock()
         self._windows: deque[_Window] = deque()
@@ -124,13 +136,16 @@ class ViewerState:
         self._n_events = 0
         self._size: tuple[int, int] | None = None
         self._cam_info: dict = {}
-        self._tracks: dict[str, _TrackView] = {}
-        self._gt: dict[str, _GtView] = {}
-        self._telemetry: dict[str, dict[str, deque]] = {}
-        self._status: dict[tuple[str, str], tuple[Status, float]] = {}
-        self._alive: set[tuple[str, str]] = set()
+        # least recently updated first (updates move an entry to the end): expiry and eviction
+        # take from the front, O(1) per update
+        self._tracks: OrderedDict[str, _TrackView] = OrderedDict()
+        self._track_key: dict[tuple[str, int], str] = {}  # (camera, track id) -> its key in _tracks
+        self._gt: OrderedDict[str, _GtView] = OrderedDict()
+        self._telemetry: OrderedDict[str, dict[str, deque]] = OrderedDict()
+        self._status: OrderedDict[tuple[str, str], tuple[Status, float]] = OrderedDict()
+        self._alive: OrderedDict[tuple[str, str], None] = OrderedDict()
         self.counts = {"windows": 0, "tracks": 0, "groundtruth": 0, "telemetry": 0, "status": 0, "bad": 0,
-                       "bad_keys": 0}
+                       "bad_keys": 0, "evicted": 0}
         self.frame_no = 0
 
     # -- inputs -------------------------------------------------------------------------------
@@ -142,8 +157,11 @@ class ViewerState:
             if msg.camera != self.camera:
                 return
             self.counts["windows"] += 1
-            if self._windows and msg.t_end_us < self._windows[-1].t_end_us - self.accumulate_us:
-                self._windows.clear()  # sensor time went back: a restarted camera or a looping replay
+            if self._windows and (msg.t_end_us < self._windows[-1].t_end_us - self.accumulate_us
+                                  or (msg.width, msg.height) != self._size):
+                # sensor time went back (a restarted camera or a looping replay) or the sensor size
+                # changed: the windows kept belong to another image
+                self._windows.clear()
                 self._n_events = 0
             self._windows.append(_Window(msg.t_end_us, msg))
             self._n_events += msg.count
@@ -161,16 +179,26 @@ class ViewerState:
         with self._lock:
             self.counts["tracks"] += 1
             self._expire(now)
+            ident = (msg.camera, msg.track_id)
             tv = self._tracks.get(key)
             # the same track under another key (numbered before it was named, or the other way
             # round): one entry per track, the newest key's, which keeps the trail and history
-            for other in [k for k, t in self._tracks.items() if k != key and t.msg.track_id == msg.track_id
-                          and t.msg.camera == msg.camera]:
-                moved = self._tracks.pop(other)
-                if tv is None:
+            other = self._track_key.get(ident)
+            if other is not None and other != key:
+                moved = self._tracks.pop(other, None)
+                if tv is None and moved is not None:
                     tv = self._tracks[key] = moved
             if tv is None:
                 tv = self._tracks[key] = _TrackView(msg, now)
+            else:
+                old = (tv.msg.camera, tv.msg.track_id)
+                if old != ident and self._track_key.get(old) == key:
+                    del self._track_key[old]  # this key now shows another track
+            self._track_key[ident] = key
+            self._tracks.move_to_end(key)
+            while len(self._tracks) > self.max_tracks:
+                self._drop_track(next(iter(self._tracks)))
+                self.counts["evicted"] += 1
             tv.msg, tv.seen = msg, now
             edge_ns = msg.edge_publish_ns or msg.tracker_publish_ns
             tv.latency_ms = (time.time_ns() - edge_ns) / 1e6 if edge_ns else None
@@ -189,15 +217,36 @@ class ViewerState:
             gv = self._gt.get(msg.robot)
             if gv is None:
                 gv = self._gt[msg.robot] = _GtView(msg, now)
+                self._bound(self._gt)
+            self._gt.move_to_end(msg.robot)
             gv.msg, gv.seen = msg, now
             gv.hist.add(msg.stamp_us, msg.x, msg.y)
 
     def _expire(self, now: float) -> None:
-        """Drop the tracks and ground-truth poses not updated for ``track_timeout_s`` (lock held)."""
-        for key in [k for k, t in self._tracks.items() if now - t.seen > self.track_timeout_s]:
-            del self._tracks[key]
-        for robot in [r for r, g in self._gt.items() if now - g.seen > self.track_timeout_s]:
+        """Drop the tracks and ground-truth poses not updated for ``track_timeout_s`` (lock held;
+        both are ordered by update, so this looks only at the expired ones and the next)."""
+        while self._tracks:
+            key, tv = next(iter(self._tracks.items()))
+            if now - tv.seen <= self.track_timeout_s:
+                break
+            self._drop_track(key)
+        while self._gt:
+            robot, gv = next(iter(self._gt.items()))
+            if now - gv.seen <= self.track_timeout_s:
+                break
             del self._gt[robot]
+
+    def _drop_track(self, key: str) -> None:
+        tv = self._tracks.pop(key)
+        ident = (tv.msg.camera, tv.msg.track_id)
+        if self._track_key.get(ident) == key:
+            del self._track_key[ident]
+
+    def _bound(self, table: OrderedDict) -> None:
+        """Evict the least recently updated entries of ``table`` beyond ``max_tracks`` (lock held)."""
+        while len(table) > self.max_tracks:
+            table.popitem(last=False)
+            self.counts["evicted"] += 1
 
     def on_telemetry(self, msg: Telemetry) -> None:
         """Add a telemetry sample (kept: wheel speeds m/s, gyro z rad/s, battery mV)."""
@@ -207,6 +256,8 @@ class ViewerState:
             if h is None:
                 h = self._telemetry[msg.robot] = {k: deque(maxlen=self.telemetry_len) for k in
                                                   ("speed_left", "speed_right", "gyro_z", "battery_mv")}
+                self._bound(self._telemetry)
+            self._telemetry.move_to_end(msg.robot)
             h["speed_left"].append(round(msg.speed_left, 4))
             h["speed_right"].append(round(msg.speed_right, 4))
             h["gyro_z"].append(round(msg.gyro[2], 4))
@@ -217,11 +268,18 @@ class ViewerState:
         with self._lock:
             self.counts["status"] += 1
             self._status[(msg.role, msg.name)] = (msg, self._now())
+            self._status.move_to_end((msg.role, msg.name))
+            self._bound(self._status)
 
     def on_alive(self, role: str, name: str, alive: bool) -> None:
         """A liveliness token appeared (``alive``) or disappeared."""
         with self._lock:
-            (self._alive.add if alive else self._alive.discard)((role, name))
+            if alive:
+                self._alive[(role, name)] = None
+                self._alive.move_to_end((role, name))
+                self._bound(self._alive)
+            else:
+                self._alive.pop((role, name), None)
 
     def on_bad(self) -> int:
         """Count a payload that was not a valid arena message (or not the one its key carries);
@@ -314,7 +372,7 @@ class ViewerState:
                             "uv": list(self._pixel(g.x, g.y, None, None) or []) or None})
             telemetry = {r: {k: list(v) for k, v in h.items()} for r, h in sorted(self._telemetry.items())}
             services = []
-            for role, name in sorted(set(self._status) | self._alive):
+            for role, name in sorted(set(self._status) | set(self._alive)):
                 st, seen = self._status.get((role, name), (None, None))
                 services.append({
                     "role": role, "name": name, "alive": (role, name) in self._alive,
@@ -330,36 +388,48 @@ class ViewerState:
             n_events = self._n_events
             return {
                 "time_ns": time.time_ns(), "frame_no": self.frame_no,
-                "image": {"width": w, "height": h, "events": n_events, "windows": len(self._windows),
+                "image": {"width": w, "height": h, "scale": self._scale(w, h), "events": n_events,
+                          "windows": len(self._windows),
                           "accumulate_ms": self.accumulate_us / 1000, **self._cam_info},
                 "calibrated": self.H is not None, "arena_size_m": list(self.arena_size_m),
                 "tracks": tracks, "groundtruth": gts, "telemetry": telemetry, "services": services,
                 "counts": dict(self.counts),
             }
 
+    def _scale(self, w: int, h: int) -> int:
+        """Downsampling factor of the event image of a ``w`` x ``h`` px sensor (1: full size)."""
+        return max(1, -(-max(w, h) // self.max_image_side))
+
     def render_index(self) -> np.ndarray | None:
         """The accumulated event image as palette indices (H x W uint8, see :data:`PALETTE`: 0 no
         event, 1 ON, 2 OFF; the latest event of a pixel wins); None before the first window.
-        Windows are decoded once, on first render."""
+        A sensor wider or higher than ``max_image_side`` px is downsampled by the integer factor
+        ``s`` of :meth:`_scale` (image ceil(H/s) x ceil(W/s), the latest event of each s x s block
+        wins). Windows are decoded once, on first render."""
         with self._lock:
             if self._size is None:
                 return None
             w, h = self._size
             wins = list(self._windows)
             self.frame_no += 1
-        flat = np.zeros(h * w, np.uint8)
+        f = self._scale(w, h)
+        wi, hi = -(-w // f), -(-h // f)
+        flat = np.zeros(hi * wi, np.uint8)
         for win in wins:
             if win.events is None:
                 try:
                     ev = codec.decode(win.msg.codec, win.msg.data, win.msg.count)
                     ev = ev[(ev["x"] < w) & (ev["y"] < h)]
-                    win.events = (ev["y"].astype(np.intp) * w + ev["x"], 2 - (ev["p"] & 1))
+                    xs, ys = ev["x"].astype(np.intp), ev["y"].astype(np.intp)
+                    if f > 1:
+                        xs, ys = xs // f, ys // f
+                    win.events = (ys * wi + xs, 2 - (ev["p"] & 1))
                 except codec.CodecError:
                     win.events = (np.empty(0, np.intp), np.empty(0, np.uint8))
                     self.on_bad()
             pos, colour = win.events
             flat[pos] = colour  # in time order: the latest event of a pixel wins
-        return flat.reshape(h, w)
+        return flat.reshape(hi, wi)
 
     def render_frame(self) -> np.ndarray | None:
         """The accumulated event image (H x W x 3, RGB uint8): ON black, OFF blue, no event white;

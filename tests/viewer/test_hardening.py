@@ -1,7 +1,8 @@
 """`arena view` refuses requests for a foreign Host (DNS rebinding) with 421, serves a bounded
-number of connections (the 65th gets 503 at once), closes idle connections after --idle-timeout,
-and keeps slow event streams alive with comments. Real `arena view` processes on ephemeral ports,
-real sockets."""
+number of connections (the 65th gets 503 at once when 64 are busy; one waiting for its request
+is replaced), closes idle connections after --idle-timeout and slow requests after
+--header-timeout, and keeps slow event streams alive with comments. Real `arena view` processes
+on ephemeral ports, real sockets."""
 
 from __future__ import annotations
 
@@ -96,14 +97,17 @@ def test_foreign_host_refused_idle_closed_streams_kept_alive(view):
     assert data.count(b": keep-alive\n\n") >= 3, data[-500:]
 
 
-@pytest.mark.parametrize("view", [("--idle-timeout", "20",)], indirect=True)
-def test_the_65th_connection_is_refused_at_once(view):
-    held = [view.connect() for _ in range(64)]
+@pytest.mark.parametrize("view", [("--idle-timeout", "20", "--rate", "1")], indirect=True)
+def test_the_65th_connection_is_refused_at_once_when_64_are_busy(view):
+    """64 event streams (busy: they never wait for a request, so none is replaced) fill the
+    default bound; the 65th connection gets 503 at once; a closed stream frees its place."""
+    held = []
     try:
-        # the 64 are served (each its thread, waiting for a request): the server has them all
-        # when a request on the last one is answered
-        held[-1].sendall(f"GET /state.json HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\n\r\n".encode())
-        assert held[-1].recv(12) == b"HTTP/1.1 200"
+        for _ in range(64):
+            s = view.connect()
+            s.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\n\r\n".encode())
+            assert s.recv(12) == b"HTTP/1.1 200"
+            held.append(s)
         with view.connect() as extra:
             t0 = time.monotonic()
             reply = _read_all(extra)
@@ -125,6 +129,41 @@ def test_the_65th_connection_is_refused_at_once(view):
             s.close()
 
 
+@pytest.mark.parametrize("view", [("--idle-timeout", "20", "--header-timeout", "1", "--max-connections", "8")],
+                         indirect=True)
+def test_slow_clients_neither_lock_out_arena_view_nor_stay(view):
+    """10 connections trickling a request (more than --max-connections 8): a request is served
+    at once (it replaces the slow client waiting longest) and every slow one is closed, however
+    short its gaps (0.1 s, against --idle-timeout 20 s)."""
+    slow = [view.connect() for _ in range(10)]
+    try:
+        for s in slow:
+            s.sendall(b"GET /state")
+        assert view.request(f"127.0.0.1:{view.port}")[0] == 200
+        open_ = list(slow)
+        for _ in range(100):   # one byte every 0.1 s on each open one, until the viewer closed them all
+            still = []
+            for s in open_:
+                try:
+                    s.sendall(b"x")
+                    s.settimeout(0.01)
+                    gone = s.recv(1) == b""
+                except TimeoutError:
+                    gone = False
+                except OSError:
+                    gone = True
+                if not gone:
+                    still.append(s)
+            open_ = still
+            if not open_:
+                break
+            time.sleep(0.1)   # the trickle's pace, not a synchronisation
+        assert not open_, f"{len(open_)} of 10 slow connections still open after 10 s"
+    finally:
+        for s in slow:
+            s.close()
+
+
 def test_on_every_address_ip_literals_are_this_host_names_are_not():
     """Served on 0.0.0.0, any IP address of the Host header is one of this machine's (a page of
     another site cannot be at an IP literal); a DNS name must be allowed explicitly."""
@@ -141,7 +180,7 @@ def test_on_every_address_ip_literals_are_this_host_names_are_not():
         ViewerServer(ViewerState(), "127.0.0.1", 0, max_connections=0)
 
 
-@pytest.mark.parametrize("args", [["--max-connections", "0"], ["--idle-timeout", "0"]])
+@pytest.mark.parametrize("args", [["--max-connections", "0"], ["--idle-timeout", "0"], ["--header-timeout", "0"]])
 def test_bad_limits_are_a_usage_error(args):
     r = subprocess.run(arena_cmd("view", "--port", "0", *args), capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--max-connections must be >= 1 and --idle-timeout > 0" in r.stderr

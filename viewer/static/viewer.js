@@ -33,10 +33,15 @@ function arrow(ctx, x0, y0, x1, y1, head) {
 function drawOverlay(s) {
   const cv = $("overlay"), im = s.image;
   if (!im.width) return;
-  if (cv.width !== im.width || cv.height !== im.height) { cv.width = im.width; cv.height = im.height; }
+  // a sensor larger than the viewer's largest image comes downsampled by im.scale: the canvas has
+  // the image's size, the drawing stays in sensor px
+  const k = im.scale || 1, cw = Math.ceil(im.width / k), ch = Math.ceil(im.height / k);
+  if (cv.width !== cw || cv.height !== ch) { cv.width = cw; cv.height = ch; }
   const ctx = cv.getContext("2d");
   const lw = Math.max(1, im.width / 400);
+  ctx.setTransform(1, 0, 0, 1, 0, 0);
   ctx.clearRect(0, 0, cv.width, cv.height);
+  ctx.setTransform(1 / k, 0, 0, 1 / k, 0, 0);
   ctx.lineWidth = lw;
   ctx.font = `${Math.round(12 * lw)}px system-ui, sans-serif`;
   for (const t of s.tracks) {
