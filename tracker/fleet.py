@@ -21,7 +21,10 @@ Arena frame throughout: metres, m/s, yaw in rad counter-clockwise from +x, times
   one that drove on during the restart is found again when a new track confirms within
   ``reclaim_m`` of it, or within the distance it can have driven since (``max_speed_mps``
   times the time since it was last seen; optimal assignment, nearest first), and takes that
-  track over.
+  track over. A restored track that no detection matches within ``lost_s`` (2 s) of the restore
+  is lost: no longer predicted, reported or saved (a state file's claim nobody confirmed must not
+  be published for the whole run), but kept aside (:attr:`FleetTracker.dormant`) so a robot that
+  stood still through the restart and moves off later still gets its ID and name back.
 """
 
 from __future__ import annotations
@@ -252,6 +255,8 @@ class _Track:
         self.robot: str | None = None
         #: restored from a snapshot and not seen since
         self.restored = False
+        #: sensor time of the first update after the restore, µs (None: not restored, or not yet)
+        self.restored_at_us: int | None = None
         self._at_rest = False       # the robot stopped inside its last window
         self._rest_rate = 0.0       # yaw rate just before it stopped, rad/s
         self._seen: tuple[float, float, float] | None = None  # x, y, yaw after the last detection
@@ -634,6 +639,10 @@ class FleetTracker:
         self.config.validate()
         self.report_tentative = report_tentative
         self.tracks: list[_Track] = []
+        #: restored tracks not seen within ``lost_s`` of the restore: no longer predicted,
+        #: reported or saved (a state file's claim nobody confirmed), but still reclaimable
+        #: (:meth:`_reclaim`) with their IDs and names by a robot that starts moving near them
+        self.dormant: list[_Track] = []
         self._next_id = 1
 
     def set_robot_name(self, track_id: int, robot: str) -> bool:
@@ -642,7 +651,7 @@ class FleetTracker:
         target = next((tr for tr in self.tracks if tr.id == track_id), None)
         if target is None:
             return False
-        for tr in self.tracks:
+        for tr in self.tracks + self.dormant:
             if tr.robot == robot and tr is not target:
                 tr.robot = None
         target.robot = robot
@@ -697,6 +706,7 @@ class FleetTracker:
         if len({tr.id for tr in tracks}) != len(tracks):
             raise ValueError("tracker snapshot has duplicate track IDs")
         self.tracks = sorted(tracks, key=lambda tr: tr.id)
+        self.dormant = []
         self._next_id = next_id
         return [tr.id for tr in self.tracks]
 
@@ -716,6 +726,8 @@ class FleetTracker:
             if tr.restored and tr.t_us > t_us:
                 # restored from a camera clock that has since restarted: rebase to now
                 tr.t_us = tr.last_seen_us = int(t_us)
+            if tr.restored and tr.restored_at_us is None:
+                tr.restored_at_us = int(t_us)
             tr.predict(t_us)
             tr.age += 1
         # confirmed tracks first, so that they win over tentative ones
@@ -752,6 +764,7 @@ class FleetTracker:
         # drop tentative tracks that keep missing
         self.tracks = [tr for tr in tracks if not (tr.state == TENTATIVE and tr.misses >= cfg.tentative_max_misses)]
         self._births(observations, sorted(unmatched_obs), t_us)
+        self._expire_restored(t_us)
         self._reclaim()
         self._fleet_cap(t_us)
         self.tracks.sort(key=lambda tr: tr.id)
@@ -767,11 +780,24 @@ class FleetTracker:
             self.tracks.append(_Track(self._next_id, ob, cfg))
             self._next_id += 1
 
+    def _expire_restored(self, t_us: int) -> None:
+        """Restored tracks that no detection matched within ``lost_s`` of the restore are lost
+        like a coasting track unseen that long: moved to :attr:`dormant` (not predicted,
+        reported or saved; still reclaimable). A state file's tracks are claims: a crafted or
+        stale one must not keep phantoms published for the whole run."""
+        lost_us = self.config.lost_s * 1e6
+        gone = [tr for tr in self.tracks if tr.restored and tr.restored_at_us is not None
+                and t_us - tr.restored_at_us >= lost_us]
+        if gone:
+            self.tracks = [tr for tr in self.tracks if not (tr.restored and tr in gone)]
+            self.dormant.extend(gone)
+
     def _reclaim(self) -> None:
-        """Restored tracks not seen since the restore are taken over (IDs and names kept) by
-        tracks that have just confirmed within ``reclaim_m``, or within the distance a robot can
-        have driven since the restored track was last seen: optimal assignment, nearest first."""
-        waiting = [tr for tr in self.tracks if tr.restored]
+        """Restored tracks not seen since the restore (dormant ones too) are taken over (IDs and
+        names kept) by tracks that have just confirmed within ``reclaim_m``, or within the
+        distance a robot can have driven since the restored track was last seen: optimal
+        assignment, nearest first."""
+        waiting = [tr for tr in self.tracks if tr.restored] + self.dormant
         if not waiting:
             return
         fresh = [tr for tr in self.tracks if not tr.restored and tr.state == CONFIRMED
@@ -788,6 +814,9 @@ class FleetTracker:
                 continue
             self._take_over(waiting[c], fresh[r])
             self.tracks.remove(fresh[r])
+            if waiting[c] in self.dormant:
+                self.dormant.remove(waiting[c])
+                self.tracks.append(waiting[c])
 
     @staticmethod
     def _take_over(old: _Track, new: _Track) -> None:

@@ -25,17 +25,25 @@
   explained by the edge's own ``dropped`` count, which go to ``windows_dropped_at_edge``, nor by
   our own full queue, ``windows_dropped_in_queue``: windows lost on the way),
   ``tracks_out``, ``stream_restarts`` (the camera's clock jumped back by > 1 s: a replay
-  looping; tracking starts afresh); gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
+  looping; tracking starts afresh), ``windows_future`` and ``windows_past`` (windows held, not
+  processed, because they jumped more than 1 s ahead of the stream, beyond what the host clock
+  and the newest window received explain, or back: a jump or a restart is taken only when
+  :attr:`LiveTracker.JUMP_CONFIRM` = 3 consecutive windows agree, so one window stamped far off
+  neither resets the tracker nor publishes tracks with its stamp; logged at the first and every
+  100th); windows refused as bad or held are not counted again in ``windows_missed``; gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
   track publish, host clocks), ``tracker`` and ``detector`` (the method in use: ``fleet`` or
   ``idtrack``, ``default`` or ``paper``).
 - Restarts: the fleet tracker's state (:meth:`tracker.fleet.FleetTracker.snapshot`: IDs,
   names, last poses) is written atomically to a small JSON state file every second and at
   exit, and restored at start (unless older than ``--state-max-age``), so track IDs come back
   after a crash, a SIGKILL or an upgrade. The file is validated like a message
-  (:func:`check_state`: at most :data:`MAX_STATE_BYTES`, types, finite numbers, ranges, at most
-  :data:`MAX_STATE_TRACKS` tracks); one that is unreadable or invalid in any way is renamed
+  (:func:`check_state`: a regular file (a FIFO or device is never opened blocking), at most
+  :data:`MAX_STATE_BYTES`, no key twice in an object, types, finite numbers, ranges, no track ID
+  or robot name twice, at most the fleet size's tracks when it is known, else
+  :data:`MAX_STATE_TRACKS` = 256); one that is unreadable or invalid in any way is renamed
   ``<file>.bad`` (replacing an older ``.bad``: one is kept), one warning names the problem, and
-  the tracker starts afresh.
+  the tracker starts afresh. Restored tracks that no detection confirms within the fleet
+  tracker's ``lost_s`` (2 s) are no longer published (see :mod:`tracker.fleet`).
 - Catching up: a tracker that stalled (its worker blocked, the process stopped, the host
   starved) does not replay its backlog. A window ending more than ``accumulation +``
   :attr:`LiveTracker.STALE_MARGIN_US` (50 ms) before the newest window received is processed but
@@ -55,6 +63,7 @@ import json
 import logging
 import math
 import os
+import stat
 import threading
 import time
 from collections import deque
@@ -80,8 +89,11 @@ __all__ = ["LiveTracker", "Inbox", "run", "default_state_path", "save_state", "l
 
 #: a state file larger than this is not read (a fleet of 1000 tracks takes ~250 kB)
 MAX_STATE_BYTES = 1 << 20
-#: at most this many tracks in a state file
-MAX_STATE_TRACKS = 1000
+#: at most this many tracks in a state file when the fleet size is unknown (with a known fleet
+#: size, at most that many: the fleet tracker keeps no more confirmed or coasting tracks). A lab
+#: holds a handful of robots; 256 leaves room for coasting clutter of a long run without a fleet
+#: size, and bounds what a crafted file can make the tracker carry and publish
+MAX_STATE_TRACKS = 256
 #: track IDs in a state file: 0 .. 2**53 (exact in JSON, in a float, in any msgpack int)
 MAX_TRACK_ID = 2 ** 53
 #: sensor times in a state file: |t| <= 2**62 µs (int64 with room for arithmetic)
@@ -112,26 +124,50 @@ def save_state(path: Path, state: dict) -> None:
     os.replace(tmp, path)
 
 
-def load_state(path: Path, camera: str, max_age_s: float, now_s: float | None = None) -> tuple[dict | None, str]:
+def _no_duplicate_keys(pairs: list) -> dict:
+    """json ``object_pairs_hook``: an object with a key twice is not a state the tracker wrote
+    (``json`` would keep the last silently)."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"the key {k[:40]!r} appears twice in one object")
+        out[k] = v
+    return out
+
+
+def load_state(path: Path, camera: str, max_age_s: float, now_s: float | None = None,
+               max_tracks: int = MAX_STATE_TRACKS) -> tuple[dict | None, str]:
     """Read a state file written by :func:`save_state` for ``camera``. Returns ``(fleet
     snapshot or None, why)``; raises ValueError (naming the problem) for a file that is not a
-    valid tracker state: larger than :data:`MAX_STATE_BYTES` (not read), not UTF-8 JSON, or
-    refused by :func:`check_state`."""
-    if not path.exists():
-        return None, f"no state file {path}: starting afresh"
+    valid tracker state: not a regular file (a FIFO, a device or a directory: opened
+    non-blocking, never waited on), larger than :data:`MAX_STATE_BYTES` (not read), not UTF-8
+    JSON, an object with a key twice, or refused by :func:`check_state` (``max_tracks``)."""
     try:
-        with open(path, "rb") as fh:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return None, f"no state file {path}: starting afresh"
+    except OSError as exc:
+        raise ValueError(f"state file {path} cannot be opened ({exc})") from None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError(f"state file {path} is not a regular file (a FIFO, device or directory): "
+                             "not a tracker state")
+        with os.fdopen(fd, "rb") as fh:
+            fd = None
             raw = fh.read(MAX_STATE_BYTES + 1)   # bounded: never a whole 1 GB file
     except OSError as exc:
         raise ValueError(f"state file {path} cannot be read ({exc})") from None
+    finally:
+        if fd is not None:
+            os.close(fd)
     if len(raw) > MAX_STATE_BYTES:
         raise ValueError(f"state file {path} is larger than {MAX_STATE_BYTES} bytes: not a tracker state")
     try:
-        state = json.loads(raw.decode("utf-8"))
+        state = json.loads(raw.decode("utf-8"), object_pairs_hook=_no_duplicate_keys)
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:   # JSONDecodeError is a ValueError
         raise ValueError(f"state file {path} is not JSON ({type(exc).__name__}: {str(exc)[:200]})") from None
     try:
-        state = check_state(state)
+        state = check_state(state, max_tracks)
     except ValueError as exc:
         raise ValueError(f"state file {path}: {exc}") from None
     if state["camera"] != camera:
@@ -173,13 +209,14 @@ def _int(d: dict, key: str, where: str, lo: int, hi: int, *, optional: bool = Fa
         raise ValueError(f"{where}.{key} = {v} is outside [{lo}, {hi}]")
 
 
-def check_state(state: object) -> dict:
+def check_state(state: object, max_tracks: int = MAX_STATE_TRACKS) -> dict:
     """Validate a decoded tracker state file like a message (pure: no I/O, no clock); returns it
     unchanged or raises ValueError naming the first problem. Checked: a JSON object with a
     ``camera`` name, a finite ``written_s`` (wall clock, s) and a ``fleet`` table of
-    :meth:`tracker.fleet.FleetTracker.snapshot` (``v``, ``next_id``, at most
-    :data:`MAX_STATE_TRACKS` ``tracks``, each with an integer ``id`` in ``[0, 2**53]``, a valid
-    robot name or null, finite ``x``/``y`` (m), ``yaw`` (rad), ``u``/``v`` (px), integer times
+    :meth:`tracker.fleet.FleetTracker.snapshot` (``v``, ``next_id``, at most ``max_tracks``
+    (default :data:`MAX_STATE_TRACKS`; the live tracker passes its fleet size when known)
+    ``tracks``, each with an integer ``id`` in ``[0, 2**53]``, no ID and no robot name twice,
+    a valid robot name or null, finite ``x``/``y`` (m), ``yaw`` (rad), ``u``/``v`` (px), integer times
     (µs) and ``hits``). Unknown keys are ignored."""
     if not isinstance(state, dict):
         raise ValueError(f"holds a JSON {type(state).__name__}, expected an object: not a tracker state")
@@ -199,8 +236,10 @@ def check_state(state: object) -> dict:
     tracks = fleet.get("tracks")
     if not isinstance(tracks, list):
         raise ValueError(f"fleet.tracks is {type(tracks).__name__}, expected a list")
-    if len(tracks) > MAX_STATE_TRACKS:
-        raise ValueError(f"fleet.tracks holds {len(tracks)} tracks, at most {MAX_STATE_TRACKS}")
+    if len(tracks) > max_tracks:
+        raise ValueError(f"fleet.tracks holds {len(tracks)} tracks, at most {max_tracks}")
+    ids: set[int] = set()
+    names: set[str] = set()
     for i, rec in enumerate(tracks):
         where = f"fleet.tracks[{i}]"
         if not isinstance(rec, dict):
@@ -224,6 +263,13 @@ def check_state(state: object) -> dict:
         _int(rec, "t_us", where, -MAX_STATE_T_US, MAX_STATE_T_US)
         _int(rec, "last_seen_us", where, -MAX_STATE_T_US, MAX_STATE_T_US, optional=True)
         _int(rec, "hits", where, 0, 2 ** 31, optional=True)
+        if rec["id"] in ids:
+            raise ValueError(f"{where}.id = {rec['id']} is another track's ID too")
+        ids.add(rec["id"])
+        if robot:
+            if robot in names:
+                raise ValueError(f"{where}.robot {robot!r} is another track's name too (one robot, one track)")
+            names.add(robot)
     return state
 
 
@@ -244,8 +290,18 @@ class LiveTracker:
     """
 
     #: a window this much older than the last one is a restarted stream (e.g. a replay
-    #: looping), not a late slice: the pipeline starts afresh
+    #: looping), not a late slice: the pipeline starts afresh (once :attr:`JUMP_CONFIRM` windows agree)
     RESTART_US = 1_000_000
+    #: a window starting more than this after the last one, beyond what the host clock has
+    #: advanced since (and beyond the newest window received), is a jump ahead: held as
+    #: suspicious (``windows_future``) until :attr:`JUMP_CONFIRM` windows agree, µs
+    JUMP_US = 1_000_000
+    #: a jump of the camera's clock (ahead, or back: a restart) is taken as the new time only when
+    #: this many consecutive windows agree on it (each following the previous one by at most
+    #: ``JUMP_US``): one window stamped far off (a corrupt or hostile sender) neither resets the
+    #: tracker nor publishes tracks with its stamp; the ones before it are counted in
+    #: ``windows_future`` or ``windows_past``. A real restart costs the first two windows (20 ms)
+    JUMP_CONFIRM = 3
     #: a seq jump by more than this (1000 s of 10 ms windows) is a sequence reset (a restarted or
     #: corrupt sender), counted in ``sequence_resets``, not that many windows missed
     MAX_SEQ_GAP = 100_000
@@ -293,6 +349,16 @@ class LiveTracker:
         # window is full again: pending (from the next window processed), then until this end, µs
         self._rebuild_pending = False
         self._rebuild_until: int | None = None
+        # windows refused (undecodable) or held (a jump) since the last window whose seq was
+        # taken: the next seq gap is not counted as missed for them
+        self._refused = 0
+        # a run of windows that jumped far from the stream: [n, "future"/"past", last t_end, first t_start]
+        self._jump: list | None = None
+        self._held_logged = 0              # windows held so far, for rate-limited logging
+        self._last_now_ns: int | None = None   # host time when the last window was taken, ns
+        #: windows the worker's queue holds (set by :func:`run`): how far the newest window
+        #: received may legitimately be ahead of the last one processed
+        self.queue_windows = 100
 
     def snapshot(self) -> dict | None:
         """The state to write to the state file (None: this tracker keeps none)."""
@@ -407,16 +473,71 @@ class LiveTracker:
             found = self.namer.update(self._namer_now_ns)
             self._pending_tel_names.update(found)
 
-    def window_end(self, payload: bytes) -> int | None:
+    def window_end(self, payload: bytes, now_ns: int | None = None) -> int | None:
         """End (sensor µs) of the window in ``payload`` if it is a valid window of this camera and
-        sensor, else None (the worker peeks at the newest window received with it)."""
+        sensor, else None (the worker peeks at the newest window received with it). With
+        ``now_ns`` (host clock), also None for a window further ahead of the last one processed
+        than the queue's span, the host time since and :attr:`JUMP_US` allow: a window stamped
+        far in the future must not make the windows queued before it look stale."""
         try:
             win = EventWindow.decode(payload)
         except MessageError:
             return None
         if win.camera != self.camera or (win.width, win.height) != self.size:
             return None
+        last = self.pipeline.last_t_us
+        if now_ns is not None and last is not None:
+            span = max(0, win.t_end_us - win.t_start_us) * max(1, self.queue_windows)
+            if win.t_end_us - last > self.JUMP_US + span + self._host_elapsed_us(now_ns):
+                return None
         return win.t_end_us
+
+    def _host_elapsed_us(self, now_ns: int) -> int:
+        """Host time since the last window was taken, µs (0 if unknown or going back)."""
+        if self._last_now_ns is None:
+            return 0
+        return max(0, (int(now_ns) - self._last_now_ns) // 1000)
+
+    def _held_jump(self, win: EventWindow, now_ns: int, newest_end_us: int | None) -> bool:
+        """Whether ``win`` is held (not processed) because it jumped far from the stream: it
+        starts more than :attr:`JUMP_US` after the last window beyond what the host clock
+        advanced since and beyond the newest window received (``windows_future``), or ends more
+        than :attr:`RESTART_US` before it (``windows_past``), and fewer than
+        :attr:`JUMP_CONFIRM` consecutive windows agree on that jump yet. The window that makes
+        them agree is taken (a restart: :meth:`_in_order` starts afresh)."""
+        last = self.pipeline.last_t_us
+        kind = None
+        if last is not None:
+            ahead = win.t_start_us - last
+            if (ahead > self.JUMP_US + self._host_elapsed_us(now_ns)
+                    and not (newest_end_us is not None and win.t_end_us <= newest_end_us)):
+                kind = "future"
+            elif win.t_end_us < last - self.RESTART_US and self.make_pipeline is not None:
+                kind = "past"
+        run = self._jump
+        if kind is None:
+            self._jump = None   # the stream goes on: whatever jumped was a stray window
+            return False
+        if run is not None and run[1] == kind and run[2] < win.t_end_us <= run[2] + self.JUMP_US:
+            run[0] += 1
+            run[2] = win.t_end_us
+        else:
+            run = self._jump = [1, kind, win.t_end_us, win.t_start_us]
+        if run[0] >= self.JUMP_CONFIRM:
+            self._jump = None
+            log.warning("camera %s: %d consecutive windows agree that its clock jumped %s (%d µs after %d µs): "
+                        "taken as the new time", self.camera, run[0], "ahead" if kind == "future" else "back",
+                        run[3], last)
+            return False
+        key = "windows_future" if kind == "future" else "windows_past"
+        self._count(key)
+        self._held_logged += 1
+        if self._held_logged == 1 or self._held_logged % 100 == 0:
+            log.warning("camera %s: window seq %d (%d..%d µs) jumped %s from the stream (last window ended %d µs): "
+                        "held, not processed (counted in %s, %d so far); a jump is taken only when %d consecutive "
+                        "windows agree", self.camera, win.seq, win.t_start_us, win.t_end_us,
+                        "ahead" if kind == "future" else "back", last, key, self._held_logged, self.JUMP_CONFIRM)
+        return True
 
     def _end_skip_run(self) -> None:
         n, t0, t1, newest, queue = self._skipped
@@ -442,9 +563,14 @@ class LiveTracker:
         if decoded is None:
             return []
         win, events = decoded
+        if self._held_jump(win, now_ns, newest_end_us):
+            self._refused += 1
+            return []
         if not self._in_order(win):
             return []
         self._count_seq_gap(win, now_ns, dropped_in_queue)
+        self._refused = 0
+        self._last_now_ns = int(now_ns)
         self.last_seq = win.seq
         self.sensor_to_host_ns = win.sensor_to_host_ns
         self._last_dropped = win.dropped
@@ -488,6 +614,7 @@ class LiveTracker:
             events = decode(win.codec, bytes(win.data), win.count)
         except (MessageError, CodecError) as exc:
             self._bad("windows_bad", f"corrupt event window skipped: {exc}")
+            self._refused += 1   # counted here: not again as missed in the next seq gap
             return None
         return win, events
 
@@ -518,7 +645,11 @@ class LiveTracker:
             log.warning("camera %s: seq jumped from %d to %d: counted as a sequence reset, not as missed windows",
                         self.camera, self.last_seq, win.seq)
         elif self.last_seq is not None and win.seq > self.last_seq + 1:
-            gap = win.seq - self.last_seq - 1
+            # windows refused as bad (their seq unreadable or untrusted) or held since the last
+            # one are already counted (windows_bad, windows_future, ...): not missed
+            gap = win.seq - self.last_seq - 1 - min(win.seq - self.last_seq - 1, self._refused)
+            if gap <= 0:
+                return
             # windows the edge itself dropped (its cumulative ``dropped`` grew by as many) are
             # the edge's count; the rest were lost on the way or in our own queue
             at_edge = min(gap, max(0, win.dropped - self._last_dropped)) if self._last_dropped is not None else 0
@@ -616,6 +747,7 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
     deadline = None if duration_s is None else time.monotonic() + duration_s
     with Service(session, "tracker", name) as svc:
         live = LiveTracker(pipe, camera, svc, make_pipeline)
+        live.queue_windows = max(1, queue)
         # the method in use, shown by `arena status` (it may come from the lab's [services.tracker])
         svc.gauge("tracker", tracker)
         svc.gauge("detector", detector)
@@ -646,7 +778,7 @@ def run(session: zenoh.Session, make_pipeline: Callable[[], Pipeline], camera: s
                 try:
                     queued = inbox.newest()
                     if queued is not None and queued is not newest[0]:
-                        newest = (queued, live.window_end(queued))
+                        newest = (queued, live.window_end(queued, time.time_ns()))
                     out = live.handle(payload, time.time_ns(), dropped,
                                       newest_end_us=newest[1] if queued is not None else None, resumed=resumed)
                     _publish(session, publishers, out, live, svc, writer)
@@ -771,8 +903,10 @@ def _restore_state(live: LiveTracker, path: Path, max_age_s: float, svc) -> None
     """Restore the fleet from ``path``; a file that is not a valid state (any problem) is
     renamed ``<file>.bad`` (one kept: it replaces an older one), one warning names the problem,
     and the tracker starts afresh."""
+    cap = getattr(getattr(live.pipeline.tracker, "config", None), "fleet_size", None)
     try:
-        fleet, why = load_state(path, live.camera, max_age_s)
+        fleet, why = load_state(path, live.camera, max_age_s,
+                                max_tracks=MAX_STATE_TRACKS if cap is None else min(int(cap), MAX_STATE_TRACKS))
         if fleet is None:
             log.info("%s", why)
             return
