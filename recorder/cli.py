@@ -50,6 +50,9 @@ def register_record(sub) -> None:
     p.add_argument("--queue", type=int, default=None,
                    help="samples buffered before the file writer; beyond it samples are dropped and counted "
                         "(default 10000)")
+    p.add_argument("--queue-mb", type=float, default=256.0,
+                   help="megabytes of samples buffered before the file writer; beyond it samples are dropped "
+                        "and counted (default 256)")
     _add_foxglove_arguments(p)
     p.add_argument("--no-foxglove", action="store_true",
                    help="do not write the Foxglove views (foxglove/... topics), only the arena messages")
@@ -115,6 +118,9 @@ def run_record(args) -> int:
     if args.queue < 1:
         print("arena record: --queue must be at least 1", file=sys.stderr)
         return 2
+    if not 1 <= args.queue_mb <= 65536:
+        print("arena record: --queue-mb must be 1 to 65536 (MB)", file=sys.stderr)
+        return 2
     out = os.path.abspath(args.out)
     if not os.path.isdir(os.path.dirname(out)):
         print(f"arena record: folder {os.path.dirname(out)} does not exist", file=sys.stderr)
@@ -132,7 +138,7 @@ def run_record(args) -> int:
         # waits for its router: only wrong settings (exit 2) end it here
         with session_or_exit(args, "arena record", lab=lab, wait_s=None) as session:
             res = record(session, out, keys, stop, duration_s=args.duration, name=name, queue_size=args.queue,
-                         metadata=meta, foxglove=foxglove,
+                         queue_bytes=int(args.queue_mb * 1e6), metadata=meta, foxglove=foxglove,
                          on_ready=lambda: print(f"recording {', '.join(keys)} to {out} (Ctrl-C to stop)",
                                                 flush=True))
     except OSError as exc:
@@ -142,8 +148,11 @@ def run_record(args) -> int:
         print(f"arena record: {exc}", file=sys.stderr)
         return 2
     views = f" (+{res.derived} Foxglove messages)" if foxglove is not None else ""
+    no_view = (f"; no Foxglove view of {res.views_dropped} samples (views behind or stopping) and of "
+               f"{res.views_skipped} windows (implausible size)"
+               if foxglove is not None and (res.views_dropped or res.views_skipped) else "")
     print(f"recorded {res.messages} messages{views} ({res.bytes / 1e6:.1f} MB of payload) in {res.seconds:.1f} s "
-          f"to {out}; dropped {res.dropped}", flush=True)
+          f"to {out}; dropped {res.dropped}{no_view}", flush=True)
     return 0 if res.dropped == 0 else 1
 
 
@@ -216,7 +225,8 @@ def _foxglove_converter(args, lab, command: str):
     """The :class:`~recorder.foxglove_views.FoxgloveConverter` for ``args`` and the lab config (arena
     size, robot sizes and colours, camera calibrations); None after printing why it cannot be made."""
     try:
-        from recorder.foxglove_views import FoxgloveConverter, RobotShape, pixel_to_arena_homography
+        from recorder.foxglove_views import (FoxgloveConverter, RobotShape, calibration_sizes,
+                                             pixel_to_arena_homography)
     except ImportError as exc:
         print(f"arena {command}: the Foxglove views need {exc.name or 'a missing package'} "
               f"(pip install foxglove-schemas-protobuf){'; or pass --no-foxglove' if command == 'record' else ''}",
@@ -226,9 +236,10 @@ def _foxglove_converter(args, lab, command: str):
         print(f"arena {command}: --image-hz and --accumulate-ms must be > 0", file=sys.stderr)
         return None
     try:
-        homographies = {}
+        homographies, calibrations = {}, {}
         if args.calibration:
-            homographies["*"] = pixel_to_arena_homography(_read_json(args.calibration, "--calibration"))
+            calibrations["*"] = _read_json(args.calibration, "--calibration")
+            homographies["*"] = pixel_to_arena_homography(calibrations["*"])
         elif lab is not None:
             for cam in lab.cameras:
                 calib = cam.calibration
@@ -236,6 +247,7 @@ def _foxglove_converter(args, lab, command: str):
                     calib = _read_json(cam.calibration_file, f"camera {cam.name}")
                 if calib is not None:
                     homographies[cam.name] = pixel_to_arena_homography(calib)
+                    calibrations[cam.name] = calib
     except ValueError as exc:
         print(f"arena {command}: {exc}", file=sys.stderr)
         return None
@@ -243,7 +255,8 @@ def _foxglove_converter(args, lab, command: str):
               for r in (lab.robots if lab is not None else [])}
     return FoxgloveConverter(arena_size_m=lab.arena.size_m if lab is not None else (1.83, 1.83), robots=robots,
                              image_period_us=max(1, int(1e6 / args.image_hz)),
-                             accumulate_us=max(1, int(args.accumulate_ms * 1000)), pixel_to_arena=homographies)
+                             accumulate_us=max(1, int(args.accumulate_ms * 1000)), pixel_to_arena=homographies,
+                             sensor_sizes=calibration_sizes(calibrations))
 
 
 def register_foxglove(sub) -> None:

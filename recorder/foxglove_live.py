@@ -125,8 +125,11 @@ def serve(session: zenoh.Session, converter: FoxgloveConverter, live: LiveServer
                     svc.error(f"cannot convert a sample on {key} for Foxglove: {exc}")
                 if converter.rejected > rejected:
                     svc.error(f"no Foxglove view of a bad message: {converter.last_error}")
+                while converter.notes:   # windows of an implausible size: no view (once per camera and size)
+                    svc.log.warning("%s", converter.notes.pop(0))
 
         svc.on_tick(lambda s: (s.gauge("queue", len(pending)), s.gauge("rejected", converter.rejected),
+                               s.gauge("skipped", converter.skipped),
                                s.gauge("channels", live.channels), s.gauge("url", live.url)))
         thread = threading.Thread(target=work, name="foxglove", daemon=True)
         thread.start()

@@ -69,8 +69,8 @@ from arena.homography import calibration_points, fit_homography
 from arena.keys import InvalidKey, parse_key
 from arena.messages import CONFIRMED, EventWindow, MessageError, Track
 
-__all__ = ["ARENA_FRAME", "FoxgloveMessage", "FoxgloveConverter", "RobotShape", "pixel_to_arena_homography",
-           "quaternion_from_yaw", "robot_frame", "schema_data", "SCHEMAS", "TOPIC_PREFIX"]
+__all__ = ["ARENA_FRAME", "MAX_IMAGE_PIXELS", "FoxgloveMessage", "FoxgloveConverter", "RobotShape",
+           "calibration_sizes", "pixel_to_arena_homography", "quaternion_from_yaw", "robot_frame", "schema_data", "SCHEMAS", "TOPIC_PREFIX"]
 
 ARENA_FRAME = "arena"
 TOPIC_PREFIX = "foxglove/"
@@ -84,6 +84,10 @@ SCHEMAS = {cls.DESCRIPTOR.full_name: cls
 _ON_RGB = (0, 0, 0)         # event image palette, as `arena view`: ON black, OFF blue, none white
 _OFF_RGB = (30, 60, 200)
 _NONE_RGB = (255, 255, 255)
+#: largest event image (px) a view is made of (2048 x 2048; see FoxgloveConverter)
+MAX_IMAGE_PIXELS = 1 << 22
+#: most compressed event bytes kept per camera for its image (the newest windows are kept)
+MAX_KEPT_BYTES = 64 << 20
 # PNG of a mostly white image: no row filter and run-length matching are 3-4x faster than
 # OpenCV's defaults (6 vs 22 ms for 640 x 480) and smaller (10 vs 21 kB)
 _PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE]
@@ -154,8 +158,6 @@ class _Camera:
     height: int = 0
     windows: deque = field(default_factory=lambda: deque(maxlen=1000))   # recent EventWindows, oldest first
     next_frame_us: int | None = None
-    arena_xy: np.ndarray | None = None      # (w * h, 2) arena m of each pixel, with the homography below
-    arena_xy_h: np.ndarray | None = None
     blank: np.ndarray | None = None          # an image without events (BGR), copied for each image
 
 
@@ -179,15 +181,33 @@ class FoxgloveConverter:
     fewer, and the full-rate poses stay on ``arena/robots/*``); an update that changes the robot's
     name or state is always converted.
 
+    **Bounded cost of the event image.** What a window makes the view allocate depends only on the
+    size it declares, so the view is made only for a window of a plausible sensor: ``sensor_sizes``
+    (camera name -> (width, height), ``"*"`` for any camera; :func:`calibration_sizes` of the
+    calibrations) renders a camera only at its calibrated size, and no view is larger than
+    ``max_image_pixels`` (default 4 Mpx, 2048 x 2048: every event camera sold today is at most
+    1280 x 960). Another window gets no view: counted in ``skipped``, its reason added to
+    ``notes`` once per camera and size (the caller logs them). The placed points are computed for the
+    event pixels only, never for every pixel of the sensor.
+
     Bad samples are counted in ``rejected`` (and the last reason kept in ``last_error``), never raised.
     """
 
     def __init__(self, arena_size_m: tuple[float, float] = (1.83, 1.83), robots: dict[str, RobotShape] | None = None,
                  default_robot: RobotShape = RobotShape(), image_period_us: int = 250_000,
                  accumulate_us: int = 100_000, pixel_to_arena: dict[str, np.ndarray] | None = None,
-                 lifetime_s: float = 1.0, outline_period_ns: int = 1_000_000_000, max_rate_hz: float = 30.0):
+                 lifetime_s: float = 1.0, outline_period_ns: int = 1_000_000_000, max_rate_hz: float = 30.0,
+                 sensor_sizes: dict[str, tuple[int, int]] | None = None,
+                 max_image_pixels: int = MAX_IMAGE_PIXELS):
         if image_period_us <= 0 or accumulate_us <= 0:
             raise ValueError("image_period_us and accumulate_us must be > 0")
+        if max_image_pixels < 1:
+            raise ValueError("max_image_pixels must be >= 1")
+        self.sensor_sizes = {k: (int(v[0]), int(v[1])) for k, v in (sensor_sizes or {}).items()}
+        self.max_image_pixels = int(max_image_pixels)
+        self.skipped = 0                    # windows recorded but given no view (size; see the class doc)
+        self.notes: list[str] = []          # why, once per camera and size; the caller empties it
+        self._skip_seen: set[tuple[str, int, int]] = set()
         self.arena_size_m = (float(arena_size_m[0]), float(arena_size_m[1]))
         self.robots = dict(robots or {})
         self.default_robot = default_robot
@@ -309,13 +329,26 @@ class FoxgloveConverter:
 
     def window(self, w: EventWindow, log_time_ns: int) -> list[FoxgloveMessage]:
         """Keep the window; once the camera's sensor time reaches the next frame, the accumulated
-        image of the last ``accumulate_us`` (and its placed point cloud, with a calibration)."""
+        image of the last ``accumulate_us`` (and its placed point cloud, with a calibration).
+        A window whose size is not its camera's calibrated size, or above ``max_image_pixels``,
+        gets no view (counted in ``skipped``; see the class doc)."""
+        why = self._no_view_reason(w)
+        if why is not None:
+            self.skipped += 1
+            if (w.camera, w.width, w.height) not in self._skip_seen and len(self._skip_seen) < 1000:
+                self._skip_seen.add((w.camera, w.width, w.height))
+                self.notes.append(f"no Foxglove view of {w.camera}'s {w.width} x {w.height} px windows: {why} "
+                                  f"(the windows are recorded; said once per camera and size)")
+            return []
         cam = self._cameras.get(w.camera)
         if cam is None or (cam.width, cam.height) != (w.width, w.height):
             cam = self._cameras[w.camera] = _Camera(w.width, w.height)
         cam.windows.append(w)
         while cam.windows and cam.windows[0].t_end_us <= w.t_end_us - self.accumulate_us:
             cam.windows.popleft()
+        kept = sum(len(x.data) for x in cam.windows)
+        while len(cam.windows) > 1 and kept > MAX_KEPT_BYTES:   # the image shows the newest only
+            kept -= len(cam.windows.popleft().data)
         if cam.next_frame_us is None:
             cam.next_frame_us = w.t_end_us
         if w.t_end_us < cam.next_frame_us:
@@ -333,6 +366,14 @@ class FoxgloveConverter:
         if H is not None:
             out.append(self._points(w.camera, cam, H, on, off, stamp_ns, log_time_ns))
         return out
+
+    def _no_view_reason(self, w: EventWindow) -> str | None:
+        size = self.sensor_sizes.get(w.camera, self.sensor_sizes.get("*"))
+        if size is not None and (w.width, w.height) != size:
+            return f"its calibration is for {size[0]} x {size[1]} px"
+        if w.width * w.height > self.max_image_pixels:
+            return f"larger than {self.max_image_pixels} px"
+        return None
 
     def _accumulate(self, cam: _Camera, t_end_us: int) -> tuple[np.ndarray, np.ndarray]:
         """Flat indices (row * width + column) of the ON pixels and of the OFF pixels with events in
@@ -363,14 +404,9 @@ class FoxgloveConverter:
 
     def _points(self, camera: str, cam: _Camera, H: np.ndarray, on, off, stamp_ns: int,
                 log_time_ns: int) -> FoxgloveMessage:
-        if cam.arena_xy is None or cam.arena_xy_h is not H:   # arena x, y of every pixel, once per camera
-            v, u = np.mgrid[0:cam.height, 0:cam.width]
-            hom = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1) @ H.T
-            cam.arena_xy = (hom[:, :2] / hom[:, 2:3]).astype(np.float32)
-            cam.arena_xy_h = H
         rec = np.zeros((on.size + off.size, 4), np.float32)   # x, y, z (float32), r, g, b, a (4 x uint8)
-        rec[:on.size, :2] = cam.arena_xy[on]
-        rec[on.size:, :2] = cam.arena_xy[off]
+        rec[:on.size, :2] = _place(on, cam.width, H)        # only the event pixels: cost by events, not sensor
+        rec[on.size:, :2] = _place(off, cam.width, H)
         rgba = rec[:, 3].view(np.uint32)
         rgba[:on.size] = _pack_rgba(_ON_RGB)
         rgba[on.size:] = _pack_rgba(_OFF_RGB)
@@ -383,6 +419,24 @@ class FoxgloveConverter:
                          point_stride=16, fields=fields, data=rec.tobytes())
         return FoxgloveMessage(f"foxglove/events/{camera}/points", "foxglove.PointCloud",
                                msg.SerializeToString(), log_time_ns, stamp_ns)
+
+
+def _place(flat: np.ndarray, width: int, H: np.ndarray) -> np.ndarray:
+    """(n, 2) float32 arena m of the pixels at flat indices ``flat`` (row * ``width`` + column)."""
+    v, u = np.divmod(flat.astype(np.int64), width)
+    hom = np.stack([u, v, np.ones(u.size, np.int64)], axis=1).astype(np.float64) @ H.T
+    return (hom[:, :2] / hom[:, 2:3]).astype(np.float32)
+
+
+def calibration_sizes(calibrations: dict[str, dict]) -> dict[str, tuple[int, int]]:
+    """camera name -> (width, height) of each calibration dict's ``image_size`` (when it has a valid one)."""
+    out = {}
+    for name, calib in calibrations.items():
+        size = calib.get("image_size") if isinstance(calib, dict) else None
+        if (isinstance(size, (list, tuple)) and len(size) == 2
+                and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+            out[name] = (int(size[0]), int(size[1]))
+    return out
 
 
 def _pack_rgba(rgb) -> np.uint32:

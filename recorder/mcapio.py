@@ -167,6 +167,10 @@ class RunWriter:
         self._writer.add_message(ch, log_time=log_time_ns, data=data, publish_time=publish_time_ns, sequence=seq)
         self.derived += 1
 
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record ``name`` (str -> str), e.g. the recording's own summary before :meth:`close`."""
+        self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
+
     def close(self) -> None:
         """Write the summary and indexes and close the file (idempotent)."""
         if self._closed:
