@@ -183,6 +183,74 @@ def _decode_planes(ctrl, low, dt_esc, dy_esc, t_base, xs, ys, ps, ts):
     return 0
 
 
+@njit(cache=True, nogil=True)
+def _decode_step(ctrl, low, dt_esc, kdt, dt_more, dy_esc, kdy, dy_more, st, xs, ys, ps, ts, i0):
+    """:func:`_decode_planes` resumable, for a window decoded in chunks: decodes events ``i0 + j``
+    from ``ctrl[j]``, ``low[j]`` with the escape bytes at hand (``dt_more``/``dy_more``: more of
+    that stream is still to come), the state ``st = [px, py, pp, pt]`` carried between calls.
+    Returns ``(j, kdt, kdy, code)``: ``j`` events done; ``code`` 0 when the chunk is done, 1 or 2
+    when the next event needs more bytes of the dt or dy stream (no partial event is consumed), a
+    negative error code as :func:`_decode_planes`."""
+    px = st[0]
+    py = st[1]
+    pp = st[2]
+    pt = st[3]
+    for j in range(ctrl.size):
+        i = i0 + j
+        c = np.int64(ctrl[j])
+        lo = np.int64(low[j])
+        if c < 16:
+            x = px + 1 + ((c << 7) | lo)
+            if i == 0 or lo > 0x7F:
+                return j, kdt, kdy, -1
+        else:
+            c -= 16
+            if c >= 192 or lo > 0x7F:
+                return j, kdt, kdy, -1
+            x = ((c & 15) << 7) | lo
+            k = c >> 4
+            dyc = k % 3
+            k //= 3
+            dtc = k & 1
+            if dtc and dt_more and dt_esc.size - kdt < 10:
+                st[0] = px
+                st[1] = py
+                st[2] = pp
+                st[3] = pt
+                return j, kdt, kdy, 1
+            if dyc == 2 and dy_more and dy_esc.size - kdy < 10:
+                st[0] = px
+                st[1] = py
+                st[2] = pp
+                st[3] = pt
+                return j, kdt, kdy, 2
+            pp = k >> 1
+            if dtc:
+                u, kdt = _get_varint(dt_esc, kdt)
+                if kdt < 0:
+                    return j, kdt, kdy, -2
+                pt += np.int64(u >> np.uint64(1)) ^ -np.int64(u & np.uint64(1))
+            if dyc == 1:
+                py -= 1
+            elif dyc == 2:
+                u, kdy = _get_varint(dy_esc, kdy)
+                if kdy < 0:
+                    return j, kdt, kdy, -3
+                py += np.int64(u >> np.uint64(1)) ^ -np.int64(u & np.uint64(1))
+        if x >= 65536 or py < 0 or py >= 65536:
+            return j, kdt, kdy, -4
+        xs[i] = x
+        ys[i] = py
+        ps[i] = pp
+        ts[i] = pt
+        px = x
+    st[0] = px
+    st[1] = py
+    st[2] = pp
+    st[3] = pt
+    return ctrl.size, kdt, kdy, 0
+
+
 _local = threading.local()
 
 
@@ -278,6 +346,16 @@ def _decompressor() -> zstandard.ZstdDecompressor:
     return _local.decompressor
 
 
+def _stream_decompressors() -> list[zstandard.ZstdDecompressor]:
+    """Four zstd decompressors (one per stream: their readers run interleaved, and one
+    decompressor serves one operation at a time) reused within the calling thread, each refusing
+    a frame whose window is over :data:`_MAX_STREAM_WINDOW`."""
+    if not hasattr(_local, "stream_decompressors"):
+        _local.stream_decompressors = [zstandard.ZstdDecompressor(max_window_size=_MAX_STREAM_WINDOW)
+                                       for _ in range(4)]
+    return _local.stream_decompressors
+
+
 def _check(events: np.ndarray) -> np.ndarray:
     if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
         from arena.events import as_events
@@ -339,6 +417,17 @@ def encode(events: np.ndarray, codec: str = DEFAULT_CODEC, t_ref_us: int | None 
     return b"".join([head, *parts])
 
 
+#: Most bytes of decompressed streams a window is decoded from in one piece (each stream to its
+#: full length, zstd allocating that length up front); a window whose header declares more (a
+#: 10 ms window of over ~3 M events) is decoded in chunks of :data:`_CHUNK` bytes, so what its
+#: streams decompress to is never held at once: decode holds the events (13 B each) and a few MB.
+_ONE_SHOT_BYTES = 16 << 20
+_CHUNK = 1 << 20
+#: Largest zstd window a chunked stream may need (each of the four keeps one): 8 MiB is what level
+#: 19 uses; :func:`encode` at level 1 uses 128 KiB.
+_MAX_STREAM_WINDOW = 1 << 23
+
+
 def decode(codec: str, data: bytes, count: int, max_events: int = MAX_WINDOW_EVENTS) -> np.ndarray:
     """Decode ``count`` events coded with ``codec``; raises :class:`CodecError` on any mismatch.
 
@@ -346,8 +435,97 @@ def decode(codec: str, data: bytes, count: int, max_events: int = MAX_WINDOW_EVE
     :class:`arena.messages.DecodeLimits` applies too) bounds the memory a corrupt or hostile
     message can claim, as do :data:`~arena.codec_names.MAX_EVENTS_PER_BYTE` (a window of repeated
     bytes that zstd packs 16 000 to one is refused) and each zstd frame's declared content size,
-    checked against the header's stream lengths before anything is allocated.
+    checked against the header's stream lengths before anything is allocated. What the streams
+    decompress to is bounded too: a window's streams are decompressed whole only up to
+    :data:`_ONE_SHOT_BYTES` together, beyond that in chunks with a hard cap at the header's
+    lengths, so decode holds at most the ``count`` events (13 B each, 130 MB at the limit) and a
+    few MB, whatever the header claims. A MemoryError while decoding is a :class:`CodecError`.
     """
+    try:
+        return _decode(codec, data, count, max_events)
+    except MemoryError:
+        raise CodecError(f"{codec} payload of {len(data)} bytes ({count} events) does not fit in memory") from None
+
+
+def _read_exact(reader, k: int) -> bytes:
+    """Up to ``k`` bytes of a zstd stream reader (fewer only at the end of its frame)."""
+    got = reader.read(k)
+    if len(got) == k or not got:
+        return got
+    parts, total = [got], len(got)
+    while total < k:
+        more = reader.read(k - total)
+        if not more:
+            break
+        parts.append(more)
+        total += len(more)
+    return b"".join(parts)
+
+
+def _ro(buf: bytes) -> np.ndarray:
+    if not buf:
+        return _EMPTY
+    a = np.frombuffer(buf, np.uint8)
+    a.setflags(write=False)
+    return a
+
+
+def _decode_chunked(codec: str, frames: list, n: int, ndt: int, ndy: int, base: int) -> np.ndarray:
+    """Decode the four streams ``frames`` in chunks of :data:`_CHUNK` (see :func:`decode`)."""
+    lengths = (n, n, ndt, ndy)
+    readers = [d.stream_reader(f) if length else None
+               for d, f, length in zip(_stream_decompressors(), frames, lengths)]
+    ev = np.empty(n, EVENT_DTYPE)
+    xs, ys, ps, ts = ev["x"], ev["y"], ev["p"], ev["t"]
+    st = np.array([0, 0, 0, base], np.int64)
+    esc = [_EMPTY, _EMPTY]             # the dt and dy bytes at hand
+    pos = [0, 0]                       # next byte of each
+    read = [0, 0]                      # bytes read of each stream so far
+    more = [ndt > 0, ndy > 0]
+
+    def refill(s: int) -> None:
+        got = _read_exact(readers[2 + s], min(_CHUNK, lengths[2 + s] - read[s]))
+        read[s] += len(got)
+        if read[s] >= lengths[2 + s] or not got:
+            more[s] = False
+        rest = esc[s][pos[s]:]
+        esc[s] = _ro(bytes(rest) + got) if rest.size else _ro(got)
+        pos[s] = 0
+
+    i = 0
+    while i < n:
+        for s, per_event in ((0, 10), (1, 3)):
+            # an escape is at most 10 (dt) or 3 (dy) bytes: more left than the events left can
+            # take is refused now, not after decoding them all
+            if lengths[2 + s] - (read[s] - (esc[s].size - pos[s])) > per_event * (n - i):
+                raise CodecError(f"{codec} payload is inconsistent (code -5)")
+        k = min(_CHUNK, n - i)
+        ctrl, low = _read_exact(readers[0], k), _read_exact(readers[1], k)
+        if len(ctrl) != k or len(low) != k:
+            raise CodecError(f"{codec} stream has fewer bytes than the header's {n}")
+        ctrl, low = _ro(ctrl), _ro(low)
+        j = 0
+        while j < k:
+            done, pos[0], pos[1], code = _decode_step(ctrl[j:], low[j:], esc[0], pos[0], more[0], esc[1], pos[1],
+                                                      more[1], st, xs, ys, ps, ts, i + j)
+            if code < 0:
+                raise CodecError(f"{codec} payload is inconsistent (code {code})")
+            j += done
+            if code:
+                refill(code - 1)
+        i += k
+    for s, reader in enumerate(readers):
+        if reader is None:
+            continue
+        if s < 2:
+            if reader.read(1):
+                raise CodecError(f"{codec} stream has more bytes than the header's {n}")
+        elif pos[s - 2] != esc[s - 2].size or more[s - 2] or read[s - 2] != lengths[s] or reader.read(1):
+            raise CodecError(f"{codec} payload is inconsistent (code -5)")
+    return ev
+
+
+def _decode(codec: str, data: bytes, count: int, max_events: int) -> np.ndarray:
     if count < 0 or count > max_events:
         raise CodecError(f"event count {count} outside [0, {max_events}]")
     if codec == RAW_CODEC:
@@ -370,22 +548,36 @@ def decode(codec: str, data: bytes, count: int, max_events: int = MAX_WINDOW_EVE
     if n > MAX_EVENTS_PER_BYTE * len(data):
         raise CodecError(f"{codec} payload of {len(data)} bytes claims {n} events, more than "
                          f"{MAX_EVENTS_PER_BYTE} per byte: a decompression bomb or corrupt")
-    d = _decompressor()
-    out, pos = [], _HEADER.size
+    frames, pos = [], _HEADER.size
     for size, raw_len in zip(sizes, (n, n, ndt, ndy)):
         frame = data[pos:pos + size]
         pos += size
         if not raw_len:
             if size:
                 raise CodecError(f"{codec} stream of {size} bytes where the header says it is empty")
+        else:
+            try:
+                # zstd allocates a frame's declared content size whatever max_output_size says
+                declared = zstandard.frame_content_size(frame)
+            except zstandard.ZstdError as exc:
+                raise CodecError(f"{codec} payload is corrupt ({exc})") from None
+            if declared != raw_len and declared != -1:
+                raise CodecError(f"{codec} stream declares {declared} bytes, the header {raw_len}")
+        frames.append(frame)
+    if 2 * n + ndt + ndy > _ONE_SHOT_BYTES:
+        try:
+            return _decode_chunked(codec, frames, n, ndt, ndy, base)
+        except zstandard.ZstdError as exc:
+            raise CodecError(f"{codec} payload is corrupt ({exc})") from None
+    d = _decompressor()
+    out = []
+    for frame, raw_len in zip(frames, (n, n, ndt, ndy)):
+        if not raw_len:
             out.append(_EMPTY)
             continue
         try:
-            # zstd allocates a frame's declared content size whatever max_output_size says
-            declared = zstandard.frame_content_size(frame)
-            if declared != raw_len and declared != -1:
-                raise CodecError(f"{codec} stream declares {declared} bytes, the header {raw_len}")
-            plane = d.decompress(frame, max_output_size=raw_len)
+            # bytes after the frame are refused, as the chunked path's stream readers do
+            plane = d.decompress(frame, max_output_size=raw_len, allow_extra_data=False)
         except zstandard.ZstdError as exc:
             raise CodecError(f"{codec} payload is corrupt ({exc})") from None
         if len(plane) != raw_len:

@@ -14,6 +14,7 @@ formats with a second kernel (~24 M events/s, the same text as ``numpy.savetxt``
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,7 @@ from arena.formats.base import (
     EventReader,
     EventWriter,
     FormatError,
+    SkippedData,
     check_events,
     check_size,
 )
@@ -256,6 +258,8 @@ class CsvReader(EventReader):
             self._have = len(first)
             self._line = 0
         self._first = None
+        self._last_t: int | None = None
+        self.unordered = 0                      # events earlier than the one before them
         if width is None or height is None:
             try:
                 self._first = self._next()
@@ -305,7 +309,22 @@ class CsvReader(EventReader):
                 raise FormatError(f"{self.path}: line {self._line + 1} of the CSV is longer than "
                                   f"{len(self._buf)} bytes: not an event CSV (one event per line: x,y,p,t)")
             if k or (self._eof and not self._have):
-                return out[:k]
+                ev = out[:k]
+                self._time_order(ev)
+                return ev
+
+    def _time_order(self, ev: np.ndarray) -> None:
+        """Count (``unordered``) and report the events earlier than the event before them: kept
+        as read, but a recording's times do not go back (``--strict`` makes it an error)."""
+        if not ev.size:
+            return
+        t = ev["t"]
+        n = int(np.count_nonzero(t[1:] < t[:-1])) + int(self._last_t is not None and int(t[0]) < self._last_t)
+        self._last_t = int(t[-1])
+        if n:
+            self.unordered += n
+            warnings.warn(SkippedData(f"{self.path}: times go backwards (events earlier than the one before "
+                                      "them, kept as read)", n, "events out of time order (kept)"), stacklevel=4)
 
     def chunks(self):
         if self._first is not None:

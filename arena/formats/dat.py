@@ -8,6 +8,7 @@ The 32-bit time wraps after 71.6 min; the reader extends wraps. The writer store
 
 from __future__ import annotations
 
+import logging
 import re
 from pathlib import Path
 
@@ -16,7 +17,10 @@ import numpy as np
 from arena.events import EVENT_DTYPE
 from arena.formats.base import DEFAULT_CHUNK_EVENTS, EventReader, EventWriter, FormatError, check_events, check_size
 
+log = logging.getLogger(__name__)
+
 _CD_TYPE = 0x0C
+_DECIMAL = re.compile(r"-?[0-9]+")   # a negative one: check_size says why
 _WORD = np.dtype([("t", "<u4"), ("d", "<u4")])
 #: longest header line read (real ones are < 100 bytes): a file of one endless line is not read whole
 _MAX_LINE = 4096
@@ -58,13 +62,24 @@ class DatReader(EventReader):
         if self.event_size != 8:
             raise FormatError(f"{path}: DAT event size {self.event_size} not supported (expected 8)")
         self.fields = fields
-        try:
-            width, height = int(fields.get("width", 0)), int(fields.get("height", 0))
-        except ValueError:
-            raise FormatError(f"{path}: DAT header's Width/Height are not integers") from None
-        if not (width and height):
-            m = re.search(r"(\d+)\s*x\s*(\d+)", fields.get("geometry", ""))
-            width, height = (int(m.group(1)), int(m.group(2))) if m else (1280, 720)
+        if "width" in fields or "height" in fields:
+            # given, they are the size: plain decimals (int() also takes "4_80", "+640", "٤٨٠"),
+            # both of them, and 0 is refused like any size outside 1..65535, not replaced
+            w, h = fields.get("width"), fields.get("height")
+            if w is None or h is None:
+                raise FormatError(f"{path}: DAT header gives {'Width' if h is None else 'Height'} "
+                                  f"without {'Height' if h is None else 'Width'}")
+            if not (_DECIMAL.fullmatch(w) and _DECIMAL.fullmatch(h)):
+                raise FormatError(f"{path}: DAT header's Width/Height are not integers ({w!r}, {h!r})")
+            width, height = int(w), int(h)
+        elif "geometry" in fields:
+            m = re.fullmatch(r"([0-9]+)\s*x\s*([0-9]+)", fields["geometry"])
+            if not m:
+                raise FormatError(f"{path}: DAT header's geometry {fields['geometry']!r} is not WIDTHxHEIGHT")
+            width, height = int(m.group(1)), int(m.group(2))
+        else:
+            width, height = 1280, 720
+            log.warning("%s: DAT header gives no sensor size; assuming 1280 x 720", path)
         self.width, self.height = check_size(width, height, str(path))
 
     def chunks(self):

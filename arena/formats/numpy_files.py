@@ -5,6 +5,7 @@ optional scalars ``width``, ``height``)."""
 from __future__ import annotations
 
 import lzma
+import warnings
 import zipfile
 import zlib
 from pathlib import Path
@@ -18,6 +19,7 @@ from arena.formats.base import (
     EventReader,
     EventWriter,
     FormatError,
+    SkippedData,
     check_events,
     check_size,
 )
@@ -30,15 +32,16 @@ _NUMPY_ERRORS = (OSError, ValueError, EOFError, TypeError, SyntaxError, TokenErr
                  zlib.error, lzma.LZMAError, KeyError, OverflowError, NotImplementedError, RuntimeError)
 
 
-def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype]:
-    """Shape and dtype of the ``.npy`` stream at ``fp``, refusing (:class:`FormatError`) an array
-    larger than the ``available`` bytes that hold it, before numpy allocates it."""
+def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype, bool]:
+    """Shape, dtype and Fortran-order flag of the ``.npy`` stream at ``fp`` (left at the array's
+    data), refusing (:class:`FormatError`) an array larger than the ``available`` bytes that hold
+    it, before anything is allocated, and arrays that cannot be events."""
     fmt = np.lib.format
     version = fmt.read_magic(fp)
     if version == (1, 0):
-        shape, _, dtype = fmt.read_array_header_1_0(fp)
+        shape, fortran, dtype = fmt.read_array_header_1_0(fp)
     elif version == (2, 0):
-        shape, _, dtype = fmt.read_array_header_2_0(fp)
+        shape, fortran, dtype = fmt.read_array_header_2_0(fp)
     else:  # 3.0: only for field names beyond latin-1, never an event array's x, y, p, t
         raise FormatError(f"{where}: .npy format version {version[0]}.{version[1]} is not supported (1.0, 2.0)")
     count = 1
@@ -48,84 +51,176 @@ def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype]:
     if need > available - fp.tell():
         raise FormatError(f"{where}: array of shape {shape} ({need} bytes) is larger than the "
                           f"{max(0, available - fp.tell())} bytes that hold it: truncated or corrupt")
-    return shape, dtype
+    if dtype.hasobject:
+        raise FormatError(f"{where}: array of Python objects ({dtype}) is not an event array")
+    if fortran and sum(int(d) > 1 for d in shape) > 1:
+        raise FormatError(f"{where}: a Fortran-order array of shape {shape} is not an event array")
+    return shape, dtype, bool(fortran)
 
 
-def _load_npy(path: Path) -> np.ndarray:
-    with open(path, "rb") as f:
-        _npy_header(f, path.stat().st_size, str(path))
-        f.seek(0)
-        return np.lib.format.read_array(f, allow_pickle=False)
+class _Member:
+    """One ``.npy`` array of a file or an npz, read in chunks of whole elements (in file order,
+    which is ``reshape(-1)``'s order: C order, or Fortran order of at most one dimension > 1)."""
+
+    def __init__(self, opener, available: int, where: str) -> None:
+        self._opener, self._where = opener, where
+        with opener() as f:
+            self.shape, self.dtype, _ = _npy_header(f, available, where)
+            self._offset = f.tell()
+        self.size = 1
+        for d in self.shape:
+            self.size *= int(d)
+        if self.dtype.itemsize == 0 and self.size:
+            raise FormatError(f"{where}: array of {self.dtype}, elements of 0 bytes")
+
+    def blocks(self, n: int):
+        """Arrays of up to ``n`` elements, the whole array in order; decompressed as read."""
+        with self._opener() as f:
+            f.read(self._offset)                 # the header, read again (a zip member streams)
+            left = self.size
+            while left:
+                k = min(n, left)
+                want = k * self.dtype.itemsize
+                buf = f.read(want)
+                if len(buf) != want:
+                    raise FormatError(f"{self._where}: array data is truncated ({len(buf)} of {want} bytes)")
+                left -= k
+                yield np.frombuffer(buf, self.dtype)
+
+    def whole(self) -> np.ndarray:
+        return np.concatenate(list(self.blocks(max(1, self.size)))) if self.size else np.empty(0, self.dtype)
 
 
-def _load_member(zf: zipfile.ZipFile, name: str, where: str) -> np.ndarray:
+def _member(zf: zipfile.ZipFile, name: str, where: str) -> _Member:
     """Array ``name`` of an npz, its declared sizes checked before anything is decompressed."""
     info = zf.getinfo(name + ".npy")
     if info.file_size > _MAX_ZIP_RATIO * info.compress_size + 4096:
         raise FormatError(f"{where}: member {name} declares {info.file_size} bytes from {info.compress_size} "
                           "compressed: a decompression bomb or corrupt")
-    with zf.open(info) as f:
-        _npy_header(f, info.file_size, f"{where}: {name}")
-    with zf.open(info) as f:
-        return np.lib.format.read_array(f, allow_pickle=False)
+    return _Member(lambda: zf.open(info), info.file_size, f"{where}: {name}")
 
 
 def _scalar_size(zf: zipfile.ZipFile, name: str, where: str) -> int | None:
     if name + ".npy" not in zf.namelist():
         return None
-    a = _load_member(zf, name, where)
-    if a.shape not in ((), (1,)) or a.dtype.kind not in "iu":
-        raise FormatError(f"{where}: {name} must be one integer, got {a.dtype} of shape {a.shape}")
-    return int(a.reshape(-1)[0])
+    m = _member(zf, name, where)
+    if m.size != 1 or m.dtype.kind not in "iu":
+        raise FormatError(f"{where}: {name} must be one integer, got {m.dtype} of shape {m.shape}")
+    return int(m.whole().reshape(-1)[0])
+
+
+#: Most bytes an npz may decompress to in all, per byte of the file (plus :data:`_ARCHIVE_SLACK`):
+#: real event columns deflate 2-10 to one (a constant polarity column 1000 to one, but it is 1 of
+#: the 13 bytes of an event), while a bomb of constant columns reaches deflate's 1032
+_MAX_ARCHIVE_RATIO = 100
+_ARCHIVE_SLACK = 16 << 20
 
 
 class NumpyReader(EventReader):
-    """Reader of ``.npy``/``.npz`` events; the file is loaded whole, then yielded in chunks.
-    Sizes in the file are checked before loading (no array larger than the file), values are
-    range-checked (``invalid`` counts events dropped)."""
+    """Reader of ``.npy``/``.npz`` events, streamed: each chunk is read (and decompressed) from the
+    file as it is yielded, so memory stays one chunk's whatever the file expands to. Sizes in the
+    file are checked before reading (no array larger than the file, no npz member expanding more
+    than deflate can, no npz expanding over :data:`_MAX_ARCHIVE_RATIO` times the file in all),
+    values are range-checked (``invalid`` counts events dropped). With no sensor size given or
+    in the file, a first pass finds the largest x and y."""
 
     def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS,
                  width: int | None = None, height: int | None = None) -> None:
         super().__init__()
         path = Path(path)
         self.path = str(path)
+        self._chunk = max(1, int(chunk_events))
+        self._zf = None
         try:
-            if path.suffix.lower() == ".npz":
-                with zipfile.ZipFile(path) as zf:
-                    names = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
-                    if "events" in names and "x" not in names:  # a structured array (simulator)
-                        self._ev = self._structured(_load_member(zf, "events", self.path))
-                    else:
-                        missing = [k for k in "xypt" if k not in names]
-                        if missing:
-                            raise FormatError(f"{path}: npz lacks array(s) {missing} (or a structured "
-                                              f"'events' array); has {names}")
-                        self._ev = self._columns(*(_load_member(zf, k, self.path) for k in "xypt"))
-                    width = width or _scalar_size(zf, "width", self.path)
-                    height = height or _scalar_size(zf, "height", self.path)
-            else:
-                self._ev = self._structured(_load_npy(path))
-        except FormatError:
+            try:
+                self._open(path)
+                width = width or self._file_w
+                height = height or self._file_h
+                if not (width and height):
+                    mx = my = -1
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", SkippedData)
+                        for ev in self._events():
+                            if ev.size:
+                                mx, my = max(mx, int(ev["x"].max())), max(my, int(ev["y"].max()))
+                    self.invalid = 0
+                    width, height = width or mx + 1 or 1, height or my + 1 or 1
+            except FormatError:
+                raise
+            except MemoryError:
+                raise FormatError(f"{path}: numpy event file does not fit in memory") from None
+            except _NUMPY_ERRORS as exc:
+                raise FormatError(f"{path}: not a readable numpy event file ({exc.__class__.__name__}: {exc})") from None
+            self.width, self.height = check_size(width, height, self.path)
+        except BaseException:
+            self.close()
             raise
-        except _NUMPY_ERRORS as exc:
-            raise FormatError(f"{path}: not a readable numpy event file ({exc.__class__.__name__}: {exc})") from None
-        self.width, self.height = check_size(
-            width or (int(self._ev["x"].max()) + 1 if self._ev.size else 1),
-            height or (int(self._ev["y"].max()) + 1 if self._ev.size else 1), self.path)
-        self._chunk = chunk_events
 
-    def _structured(self, arr: np.ndarray) -> np.ndarray:
-        names = arr.dtype.names or ()
+    def _open(self, path: Path) -> None:
+        self._file_w = self._file_h = None
+        if path.suffix.lower() != ".npz":
+            self._members = [_Member(lambda: open(path, "rb"), path.stat().st_size, self.path)]
+            self._check_structured(self._members[0])
+            return
+        self._zf = zf = zipfile.ZipFile(path)
+        total = sum(i.file_size for i in zf.infolist())
+        if total > _MAX_ARCHIVE_RATIO * path.stat().st_size + _ARCHIVE_SLACK:
+            raise FormatError(f"{path}: npz declares {total} bytes in all from a {path.stat().st_size}-byte file "
+                              f"(over {_MAX_ARCHIVE_RATIO} to one): a decompression bomb or corrupt")
+        names = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
+        if "events" in names and "x" not in names:  # a structured array (simulator)
+            self._members = [_member(zf, "events", self.path)]
+            self._check_structured(self._members[0])
+        else:
+            missing = [k for k in "xypt" if k not in names]
+            if missing:
+                raise FormatError(f"{path}: npz lacks array(s) {missing} (or a structured "
+                                  f"'events' array); has {names}")
+            self._members = [_member(zf, k, self.path) for k in "xypt"]
+            for k, m in zip("xypt", self._members):
+                if m.dtype.kind not in "biuf":
+                    raise FormatError(f"{self.path}: column {k} holds {m.dtype} values, expected integers")
+                if len(m.shape) != 1:
+                    raise FormatError(f"{self.path}: column {k} has shape {m.shape}, expected one dimension")
+            sizes = [m.size for m in self._members]
+            if len(set(sizes)) != 1:
+                raise FormatError(f"{self.path}: columns x, y, p, t have different lengths "
+                                  f"({', '.join(map(str, sizes))})")
+        self._file_w = _scalar_size(zf, "width", self.path)
+        self._file_h = _scalar_size(zf, "height", self.path)
+
+    def _check_structured(self, m: _Member) -> None:
+        names = m.dtype.names or ()
         missing = [f for f in "xypt" if f not in names]
         if missing:
             raise FormatError(f"{self.path}: event array lacks field(s) {missing}; has {list(names)} "
                               "(a structured array with fields x, y, p, t)")
-        return self._columns(arr["x"].reshape(-1), arr["y"].reshape(-1), arr["p"].reshape(-1),
-                             arr["t"].reshape(-1))
+
+    def _events(self):
+        """Chunks of range-checked events (not yet checked against the sensor)."""
+        if len(self._members) == 1:
+            for arr in self._members[0].blocks(self._chunk):
+                yield self._columns(arr["x"], arr["y"], arr["p"], arr["t"])
+        else:
+            for x, y, p, t in zip(*(m.blocks(self._chunk) for m in self._members)):
+                yield self._columns(x, y, p, t)
 
     def chunks(self):
-        for i in range(0, self._ev.size, self._chunk):
-            yield self._valid(self._ev[i:i + self._chunk])
+        try:
+            for ev in self._events():
+                yield self._valid(ev)
+        except FormatError:
+            raise
+        except MemoryError:
+            raise FormatError(f"{self.path}: numpy event file does not fit in memory") from None
+        except _NUMPY_ERRORS as exc:
+            raise FormatError(f"{self.path}: not a readable numpy event file "
+                              f"({exc.__class__.__name__}: {exc})") from None
+
+    def close(self) -> None:
+        if self._zf is not None:
+            self._zf.close()
+            self._zf = None
 
 
 class NumpyWriter(EventWriter):

@@ -27,6 +27,17 @@ _SENSOR_SIZES = [
     ("imx636", (1280, 720)), ("imx646", (1280, 720)), ("gen41", (1280, 720)), ("gen4", (1280, 720)),
     ("genx320", (320, 320)), ("gen31", (640, 480)), ("gen3", (640, 480)), ("imx8", (320, 320)),
 ]
+
+
+def _types(known: set[int], continued: set[int]) -> tuple[np.ndarray, np.ndarray]:
+    return np.isin(np.arange(16), sorted(known)), np.isin(np.arange(16), sorted(continued))
+
+
+#: word types each EVT version defines, and its CONTINUED types (extra data of an OTHERS word):
+#: EVT 3.0 adds 0x7 CONTINUED_4 to 0xF CONTINUED_12
+_WORD_TYPES = {"3.0": _types({0x0, 0x2, 0x3, 0x4, 0x5, 0x6, 0x7, 0x8, 0xA, 0xE, 0xF}, {0x7, 0xF}),
+               "2.0": _types({0x0, 0x1, 0x8, 0xA, 0xE, 0xF}, {0xF}),
+               "2.1": _types({0x0, 0x1, 0x8, 0xA, 0xE, 0xF}, {0xF})}
 _DECODERS = {"3.0": Evt3Decoder, "2.0": Evt2Decoder, "2.1": Evt21Decoder}
 _FORMAT_NAMES = {"EVT3": "3.0", "EVT2": "2.0", "EVT21": "2.1"}
 
@@ -69,24 +80,28 @@ def _parse_raw_header(data: bytes) -> RawHeader:
         key, _, value = line.partition(" ")
         fields[key.lower()] = value.strip()
     hdr = RawHeader(fields=fields, size=pos)
+    sized = False                 # a size given is the size (0 is refused, not replaced)
     fmt = fields.get("format", "")
     if fmt:
         name, *opts = fmt.split(";")
         hdr.version = _FORMAT_NAMES.get(name.strip().upper(), "")
         kv = dict(o.split("=", 1) for o in opts if "=" in o)
         if "width" in kv and "height" in kv:
-            hdr.width, hdr.height = int(kv["width"]), int(kv["height"])
+            hdr.width, hdr.height = _decimal(kv["width"]), _decimal(kv["height"])
+            sized = True
     if not hdr.version and "evt" in fields:
         hdr.version = fields["evt"].strip()
     if hdr.version not in _DECODERS:
         raise FormatError(f"RAW header does not name a known EVT version (evt={fields.get('evt')!r}, "
                           f"format={fmt!r}); supported: EVT 2.0, 2.1, 3.0")
-    if not hdr.width:
-        m = re.match(r"(\d+)\s*x\s*(\d+)", fields.get("geometry", ""))
+    if not sized:
+        m = re.fullmatch(r"([0-9]+)\s*x\s*([0-9]+)", fields.get("geometry", ""))
+        if "geometry" in fields and not m:
+            raise FormatError(f"RAW header's geometry {fields['geometry']!r} is not WIDTHxHEIGHT")
         if m:
             hdr.width, hdr.height = int(m.group(1)), int(m.group(2))
         elif "width" in fields and "height" in fields:
-            hdr.width, hdr.height = int(fields["width"]), int(fields["height"])
+            hdr.width, hdr.height = _decimal(fields["width"]), _decimal(fields["height"])
         else:
             hint = (fields.get("sensor_generation", "") + " " + fields.get("plugin_name", "")).lower()
             for key, size in _SENSOR_SIZES:
@@ -97,6 +112,13 @@ def _parse_raw_header(data: bytes) -> RawHeader:
                 hdr.width, hdr.height = 1280, 720
                 log.warning("RAW header gives no sensor size; assuming 1280 x 720")
     return hdr
+
+
+def _decimal(text: str) -> int:
+    """A size in a header: plain decimal digits (``int()`` also takes "4_80", "+640", "٤٨٠")."""
+    if not re.fullmatch(r"-?[0-9]+", text.strip()):   # a negative one: check_size says why
+        raise FormatError(f"RAW header gives a sensor size that is not a number ({text!r})")
+    return int(text)
 
 
 def make_decoder(version: str):
@@ -124,6 +146,33 @@ class RawReader(EventReader):
         self.decoder = make_decoder(self.header.version)
         self._f.seek(self.header.size)
         self._chunk_bytes = max(64, chunk_events * self.decoder.word_bytes)
+        wb = self.decoder.word_bytes
+        self._word = np.dtype(f"<u{wb}")
+        self._type_shift = 8 * wb - 4
+        self._known, self._continued = _WORD_TYPES[self.header.version]
+        self._tail = b""                # bytes of a word cut by the chunk's end
+        self._last_type = -1            # type of the last word not a CONTINUED one
+
+    def _unknown_words(self, data: bytes) -> int:
+        """Words of ``data`` (after the previous chunk's cut word) that no decoder reads: of a type
+        the EVT version does not define, or CONTINUED words not after an OTHERS word."""
+        data = self._tail + data
+        usable = len(data) - len(data) % self._word.itemsize
+        self._tail = data[usable:]
+        if not usable:
+            return 0
+        typ = (np.frombuffer(data, self._word, usable // self._word.itemsize) >> self._type_shift).astype(np.intp)
+        n = int(np.count_nonzero(~self._known[typ]))
+        cont = self._continued[typ]
+        if cont.any():
+            idx = np.where(cont, -1, np.arange(typ.size))
+            np.maximum.accumulate(idx, out=idx)
+            before = np.where(idx >= 0, typ[np.maximum(idx, 0)], self._last_type)
+            n += int(np.count_nonzero(cont & (before != 0xE)))
+        last = np.flatnonzero(~cont)
+        if last.size:
+            self._last_type = int(typ[last[-1]])
+        return n
 
     def chunks(self):
         """Event chunks; event words before the first TIME_HIGH (no time known) and the bytes of
@@ -133,6 +182,11 @@ class RawReader(EventReader):
             data = self._f.read(self._chunk_bytes)
             if not data:
                 break
+            unknown = self._unknown_words(data)
+            if unknown:
+                self._skip(unknown, "words of no known type",
+                           "words of a type the EVT version does not define, or CONTINUED words not after an "
+                           "OTHERS word, skipped (not EVT data?)")
             ev = self.decoder.feed(data)
             if self.decoder.skipped_words > words:
                 self._skip(self.decoder.skipped_words - words, "event words without a time",

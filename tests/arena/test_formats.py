@@ -734,3 +734,77 @@ def test_csv_kernels_are_compiled_by_the_demo_warmup(tmp_path, monkeypatch):
     subprocess.run([sys.executable, "-c", "from demo.warmup import compile_csv; compile_csv()"], check=True,
                    timeout=300, env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)})
     assert kernels_cached(csv_kernels)
+
+
+# --- readers that said nothing (issue 20, red team round 3) ---
+
+@pytest.mark.parametrize("evt", [3, 2])
+def test_raw_words_of_no_known_type_are_counted_and_reported(tmp_path, evt):
+    ev = _random_events(100, seed=40)
+    write_events(tmp_path / "ok.raw", ev, 1280, 720, evt=evt)
+    data = (tmp_path / "ok.raw").read_bytes()
+    hdr = data.split(b"% end\n")[0] + b"% end\n"
+    (tmp_path / "ff.raw").write_bytes(hdr + b"\xff" * 100_000)      # orphan CONTINUED words only
+    out, reader = _read_quietly(tmp_path / "ff.raw")
+    words = 100_000 * 8 // (16 if evt == 3 else 32)
+    assert out.size == 0 and reader.skipped == words
+    assert sum(w.count for w in reader.warned if w.unit == "words of no known type") == words
+    # after the events, an undefined type (EVT 3.0 0x1, EVT 2.0 0x3) and an OTHERS word with
+    # its CONTINUED word (read by no decoder, but defined: not counted)
+    word = "<u2" if evt == 3 else "<u4"
+    sh = 12 if evt == 3 else 28
+    undefined = 0x1 if evt == 3 else 0x3
+    tail = np.array([undefined << sh, 0xE << sh, 0xF << sh, 0xF << sh], word).tobytes()
+    (tmp_path / "tail.raw").write_bytes(data + tail)
+    out, reader = _read_quietly(tmp_path / "tail.raw")
+    np.testing.assert_array_equal(out, read_events(tmp_path / "ok.raw")[0])
+    assert reader.skipped == 1
+    _, ok = _read_quietly(tmp_path / "ok.raw")
+    assert ok.skipped == 0 and not ok.warned
+
+
+def test_the_real_evt3_sample_has_no_unknown_words():
+    path = Path(__file__).resolve().parents[3] / "shared" / "data" / "evt3_sample.raw"
+    if not path.exists():
+        pytest.skip("no shared sample")
+    out, reader = _read_quietly(path)
+    assert out.size == 219_596 and reader.skipped == 0
+
+
+@pytest.mark.parametrize("ext,old,new,match", [
+    (".dat", b"% Width 1280", b"% Width 0", "outside 1..65535"),        # was 1280 x 720
+    (".dat", b"% Height 720", b"% Height 7_20", "not integers"),        # was 720
+    (".dat", b"% Height 720\n", b"", "Width without Height"),
+    (".raw", b"width=1280", b"width=0", "outside 1..65535"),            # was the geometry line's
+    (".raw", b"EVT3;height=720;width=1280\n% geometry 1280x720", b"EVT3\n% geometry 1280x720x3", "WIDTHxHEIGHT"),
+])
+def test_header_sizes_that_are_zero_or_not_plain_decimals_are_refused(tmp_path, ext, old, new, match):
+    path = tmp_path / f"x{ext}"
+    write_events(path, _random_events(50, seed=41), 1280, 720)
+    data = path.read_bytes()
+    assert old in data
+    path.write_bytes(data.replace(old, new, 1))
+    with pytest.raises(FormatError, match=match):
+        read_events(path)
+
+
+def test_raw_width_height_lines_must_be_plain_decimals():
+    with pytest.raises(FormatError, match="not a number"):
+        parse_raw_header(b"% evt 3.0\n% width 640\n% height 4_80\n")     # int() took it: 480
+    assert (parse_raw_header(b"% evt 3.0\n% width 640\n% height 480 \n").height) == 480
+
+
+def test_csv_times_going_backwards_are_counted_and_reported_or_refused_with_strict(tmp_path):
+    lines = [(1, 2, 1, 100), (3, 4, 0, 200), (5, 6, 1, 150), (7, 8, 0, 300), (9, 9, 1, 10)]
+    path = tmp_path / "back.csv"
+    path.write_text("x,y,p,t\n" + "".join(f"{a},{b},{c},{d}\n" for a, b, c, d in lines))
+    ev, reader = _read_quietly(path, chunk_events=2)     # one step back inside a block, one across
+    assert ev.tolist() == lines and reader.unordered == 2
+    assert sum(w.count for w in reader.warned if w.unit.startswith("events out of time order")) == 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkippedData)
+        with pytest.raises(FormatError, match="backwards"):
+            read_events(path)
+    path.write_text("".join(f"{a},{b},{c},{d}\n" for a, b, c, d in sorted(lines, key=lambda r: r[3])))
+    _, ok = _read_quietly(path)
+    assert ok.unordered == 0 and not ok.warned

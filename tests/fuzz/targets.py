@@ -48,7 +48,8 @@ HOSTILE_INTS = (0, 1, 2, 3, -1, -2, 0x7F, 0x80, 0xFF, 0x7FFF, 0x8000, 0xFFFF, 65
                 2**31 - 1, 2**31, 2**32 - 1, 2**40, 2**62, 2**63 - 1, -2**31, -2**63)
 #: text that CSV lines and npy headers go wrong with
 HOSTILE_TEXT = (b"65636", b"-5", b"2", b"3", b"-1", b"99999999999999999999", b"1e9", b"nan", b"(1099511627776,)",
-                b"(0,)", b"((", b"'<U5'", b"'O'", b"\n", b",", b",,", b"\x00", b"True", b"-0", b"0x10")
+                b"(0,)", b"((", b"'<U5'", b"'O'", b"\n", b",", b",,", b"\x00", b"True", b"-0", b"0x10",
+                b"4_80", b"+640", b"\xff\xff\xff\xff")    # int() takes "4_80"; 0xFFFF.. words: no known type
 
 
 @dataclass
@@ -151,6 +152,37 @@ def _codec_check(codec: str) -> Callable[[bytes], None]:
     return check
 
 
+def _zero_frame(n: int) -> bytes:
+    """A zstd frame of ``n`` zero bytes that declares no content size (zstd cannot then size its
+    output from the frame: the decoder must bound it)."""
+    import zstandard
+
+    return zstandard.ZstdCompressor(level=1, write_content_size=False).compress(b"\0" * n) if n else b""
+
+
+def _codec_generate(draw, data: bytes) -> bytes:
+    """Mutations of the seed, or (one time in six) a decompression bomb: zero-filled streams that
+    declare no content size behind a header whose count (up to 2 M events, inside 2048 per byte
+    once padded) and escape lengths (up to 10 n and 3 n, or beyond) are hostile: windows over the
+    codec's one-shot size are decoded in chunks."""
+    if draw(st.integers(0, 5)):
+        return mutations(draw, data)
+    n = draw(st.sampled_from([1, 300, 4096, 100_000, 1_000_000, 2_000_000]))
+    ndt = draw(st.sampled_from([0, n, 10 * n, 10 * n + 1, 2**31]))
+    ndy = draw(st.sampled_from([0, n, 3 * n, 3 * n + 1]))
+    ctrl = draw(st.sampled_from([b"\x10", b"\x30", b"\x00", b"\x50"]))     # plain, dt escape, run, dy escape
+    import zstandard
+
+    streams = [zstandard.ZstdCompressor(level=1, write_content_size=False).compress(ctrl * n), _zero_frame(n),
+               _zero_frame(min(ndt, 20 * n)), _zero_frame(min(ndy, 4 * n))]
+    total = 36 + sum(map(len, streams))
+    if draw(st.booleans()) and n > 2048 * total:
+        streams[3] += b"\0" * (n // 2048 + 1 - total)
+    head = struct.pack("<4sIqIIIIII", b"EVW1", n, 0, ndt, ndy, *(len(x) for x in streams))
+    out = struct.pack("<I", n) + head + b"".join(streams)
+    return mutations(draw, out) if draw(st.integers(0, 3)) == 0 else out
+
+
 # --- files ---
 
 def _file_seed(ext: str, **opts) -> Callable[[], bytes]:
@@ -190,6 +222,37 @@ def _file_check(ext: str) -> Callable[[bytes], None]:
             assert int(ev["x"].max()) < w and int(ev["y"].max()) < h
             assert int(ev["p"].max()) <= 1
     return check
+
+
+def _npz_generate(draw, data: bytes) -> bytes:
+    """Mutations of the seed, or (one time in six) an npz decompression bomb: columns of one
+    repeated value (deflate ~1030:1) of up to 4 M events, of hostile dtypes, or a structured
+    ``events`` array, with or without a sensor size."""
+    if draw(st.integers(0, 5)):
+        return mutations(draw, data)
+    import io
+    import zipfile
+
+    n = draw(st.sampled_from([0, 1, 1000, 1_000_000, 4_000_000]))
+    dtype = draw(st.sampled_from(["u1", "<u2", "<i8", "<f8", "|b1", ">i4"]))
+    fill = draw(st.sampled_from([0, 1, 2, 65636, -1]))
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED, compresslevel=draw(st.sampled_from([1, 9]))) as zf:
+        def put(name, arr):
+            b = io.BytesIO()
+            np.save(b, arr)
+            zf.writestr(name + ".npy", b.getvalue())
+        with np.errstate(over="ignore"):
+            if draw(st.booleans()):
+                for name in "xypt":
+                    put(name, np.full(n, fill).astype(dtype))
+            else:
+                put("events", np.zeros(n, [("x", dtype), ("y", "<u2"), ("p", "u1"), ("t", "<i8")]))
+        if draw(st.booleans()):
+            put("width", np.array(draw(st.sampled_from([640, 0, -1, 2**40]))))
+            put("height", np.array(480))
+    out = buf.getvalue()
+    return mutations(draw, out) if draw(st.integers(0, 3)) == 0 else out
 
 
 # --- structured documents (JSON, msgpack, TOML) ---
@@ -667,8 +730,8 @@ def _has_null(obj) -> bool:
 
 TARGETS: dict[str, Target] = {t.name: t for t in [
     Target("messages", _message_seed, _check_message),
-    Target("codec-planes", _codec_seed("planes-zstd/1"), _codec_check("planes-zstd/1")),
-    Target("codec-lossy", _codec_seed("planes-zstd-ms/1"), _codec_check("planes-zstd-ms/1")),
+    Target("codec-planes", _codec_seed("planes-zstd/1"), _codec_check("planes-zstd/1"), _codec_generate),
+    Target("codec-lossy", _codec_seed("planes-zstd-ms/1"), _codec_check("planes-zstd-ms/1"), _codec_generate),
     Target("codec-raw", _codec_seed("raw/1"), _codec_check("raw/1")),
     Target("file-evt3", _file_seed(".raw", evt=3), _file_check(".raw")),
     Target("file-evt2", _file_seed(".raw", evt=2), _file_check(".raw")),
@@ -679,7 +742,7 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
     Target("file-aedat4-none", _file_seed(".aedat4", compression="none", packet_events=64), _file_check(".aedat4")),
     Target("file-csv", _file_seed(".csv"), _file_check(".csv")),
     Target("file-npy", _file_seed(".npy"), _file_check(".npy")),
-    Target("file-npz", _file_seed(".npz"), _file_check(".npz")),
+    Target("file-npz", _file_seed(".npz"), _file_check(".npz"), _npz_generate),
     Target("robot-protocol", _protocol_seed, _check_protocol),
     Target("mission", _mission_seed, _check_mission, _mission_generate),
     Target("tracker-state", _state_seed, _check_state, _json_generate(_STATE_KEYS)),
