@@ -77,16 +77,23 @@ def _no_events(path: str) -> str | None:
             return f"no events in {path} (the file is empty, 0 bytes)"
     except OSError:
         return None
+    from arena.formats import SkippedData
+
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")   # the real read reports what it skips
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", SkippedData)   # what it skipped is why it has none
             with iter_events(path) as reader:
                 if any(chunk.size for chunk in reader):
                     return None
                 invalid = reader.invalid
     except (FormatError, OSError, ValueError):
         return None
-    return f"no events in {path} ({f'{invalid} invalid events only' if invalid else 'a header without events'})"
+    skips = [w.message for w in caught if isinstance(w.message, SkippedData)]
+    if skips:
+        why = ", ".join(f"{m.count} {m.unit} skipped" for m in skips[:3])
+    else:
+        why = f"{invalid} invalid events only" if invalid else "a header without events"
+    return f"no events in {path} ({why})"
 
 
 def register_convert(sub) -> None:
@@ -152,7 +159,8 @@ def run_convert(args) -> int:
             return 2
     skipped.pop("invalid events", None)
     extra = f", {res['invalid']} invalid events skipped" if res["invalid"] else ""
-    extra += "".join(f", {n} {unit} skipped" for unit, n in sorted(skipped.items()))
+    # a unit saying what happened to them ("... (kept)") is not a skip
+    extra += "".join(f", {n} {unit}" + ("" if unit.endswith(")") else " skipped") for unit, n in sorted(skipped.items()))
     print(f"{args.output}: {res['events']} events, {res['width']} x {res['height']} px{extra}")
     return 0
 

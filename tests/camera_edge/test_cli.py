@@ -141,6 +141,15 @@ def _empty_files(tmp_path) -> list:
     return files
 
 
+def test_convert_of_a_raw_file_of_unknown_words_says_what_was_skipped(tmp_path, capsys):
+    """A RAW body of 0xFF words only (a red team's file) said "a header without events"."""
+    raw = tmp_path / "ff.raw"
+    raw.write_bytes(b"% evt 3.0\n% format EVT3;height=480;width=640\n% end\n" + b"\xff" * 100_000)
+    assert _main("convert", str(raw), str(tmp_path / "ff.csv")) == 2
+    err = capsys.readouterr().err
+    assert "no events in" in err and "(50000 words of no known type skipped)" in err, err
+
+
 def test_convert_of_a_file_without_events_says_so_and_writes_nothing(tmp_path, capsys):
     for src in _empty_files(tmp_path):
         out = tmp_path / f"out-{src.name}.npz"
@@ -151,7 +160,7 @@ def test_convert_of_a_file_without_events_says_so_and_writes_nothing(tmp_path, c
         assert not out.exists(), src.name
     (tmp_path / "bad.csv").write_text("1,2,3,4\n")   # polarity 3: its only event is invalid
     assert _main("convert", str(tmp_path / "bad.csv"), str(tmp_path / "bad.npz")) == 2
-    assert "1 invalid events only" in capsys.readouterr().err and not (tmp_path / "bad.npz").exists()
+    assert "(1 invalid events skipped)" in capsys.readouterr().err and not (tmp_path / "bad.npz").exists()
     (tmp_path / "one.csv").write_text("1,2,1,4\n")   # one event: converted as before
     assert _main("convert", str(tmp_path / "one.csv"), str(tmp_path / "one.npz")) == 0
     assert read_events(tmp_path / "one.npz")[0].size == 1
