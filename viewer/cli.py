@@ -50,7 +50,9 @@ def register(sub) -> None:
                         "repeatable). Others than the address served on, localhost and 127.0.0.1 get 421")
     p.add_argument("--max-connections", type=int, default=64,
                    help="connections served at once, pages and event streams (default 64); when all are open, a\n"
-                        "new one replaces the one waiting longest for its request, and gets 503 only if all are busy")
+                        "new one replaces the one waiting longest for its request, and gets 503 only if all are busy;\n"
+                        "event streams take at most all but an eighth of them (at least one kept back), a stream\n"
+                        "beyond that gets 503")
     p.add_argument("--idle-timeout", type=float, default=30.0, metavar="S",
                    help="close a connection that sends or reads nothing for S seconds (default 30)")
     p.add_argument("--header-timeout", type=float, default=10.0, metavar="S",
@@ -141,8 +143,10 @@ def run(args) -> int:
                                    s.gauge("refused_host", server.refused["host"]),
                                    s.gauge("refused_busy", server.refused["busy"]),
                                    s.gauge("refused_slow", server.refused["slow"]),
+                                   s.gauge("refused_streams", server.refused["streams"]),
                                    s.gauge("evicted_connections", server.refused["evicted"]),
-                                   s.gauge("evicted_entries", state.counts["evicted"])))
+                                   s.gauge("evicted_entries", state.counts["evicted"]),
+                                   s.gauge("windows_subsampled", state.counts["subsampled"])))
             thread.start()
             print(f"viewer on {server.url} (Ctrl-C to stop)", flush=True)
             try:

@@ -19,7 +19,10 @@ of its previous response) is closed, however slowly it trickles bytes (counted i
 ``max_connections`` are open, a new connection takes the place of the one that has waited
 longest for its request (closed, counted in ``refused["evicted"]``); only when every open
 connection is busy with a request (event streams, responses being sent) does a new one get 503
-at once (``refused["busy"]``).
+at once (``refused["busy"]``). Event streams never take the last connections: at most
+``max_streams`` are served at once (default ``max_connections`` less an eighth of it, at least
+one less, and at least 1), a stream beyond that gets 503 at once (``refused["streams"]``), so
+pages and ``/state.json`` are still served however many streams clients hold open.
 
 Last resort: an event image that cannot be rendered or encoded (whatever the reason, MemoryError
 included) is answered 503 on ``/frame.png``, left out of the stream's message, counted in the
@@ -123,9 +126,15 @@ class ViewerServer(ThreadingHTTPServer):
 
     def __init__(self, state: ViewerState, host: str = "127.0.0.1", port: int = 8080, period_s: float = 0.1,
                  title: str = "arena view", allow_hosts: tuple[str, ...] | list[str] = (),
-                 max_connections: int = 64, idle_timeout_s: float = 30.0, header_timeout_s: float = 10.0):
+                 max_connections: int = 64, idle_timeout_s: float = 30.0, header_timeout_s: float = 10.0,
+                 max_streams: int | None = None):
         if max_connections < 1 or idle_timeout_s <= 0 or not header_timeout_s > 0:
             raise ValueError("max_connections must be >= 1, idle_timeout_s > 0 and header_timeout_s > 0")
+        if max_streams is None:
+            max_streams = max(1, max_connections - max(1, max_connections // 8))
+        if not 1 <= max_streams <= max_connections:
+            raise ValueError(f"max_streams must be in [1, max_connections={max_connections}], got {max_streams}")
+        self.max_streams = max_streams
         self.state = state
         self.period_s = period_s
         self.title = title
@@ -136,7 +145,7 @@ class ViewerServer(ThreadingHTTPServer):
         self.idle_timeout_s = idle_timeout_s
         self.header_timeout_s = header_timeout_s
         # counts of refused requests / connections (see the module docstring)
-        self.refused = {"host": 0, "busy": 0, "slow": 0, "evicted": 0}
+        self.refused = {"host": 0, "busy": 0, "slow": 0, "evicted": 0, "streams": 0}
         self._conn_lock = threading.Lock()
         self._conns: dict[socket.socket, _Conn] = {}
         self._open = 0      # connections counted against max_connections
@@ -252,6 +261,12 @@ class ViewerServer(ThreadingHTTPServer):
                     self._closing -= 1
                 else:
                     self._open -= 1
+
+    def shutdown_request(self, request) -> None:
+        # counted free before the socket closes: a client that read its answer to the end and
+        # connects again at once must find the place it left
+        self._release(request)
+        super().shutdown_request(request)
 
     def process_request_thread(self, request, client_address) -> None:
         try:
@@ -397,14 +412,32 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(b"not found", "text/plain", HTTPStatus.NOT_FOUND)
 
     def _stream(self) -> None:
+        srv = self.server
+        with srv._conn_lock:
+            full = srv.clients >= srv.max_streams
+            if full:
+                srv.refused["streams"] += 1
+                n = srv.refused["streams"]
+            else:
+                srv.clients += 1
+        if full:   # the connections left are kept for pages and /state.json
+            _log_counted(n, f"refused an event stream from {self.client_address[0]}: {srv.max_streams} open (the most)")
+            self.close_connection = True
+            self.send_response(HTTPStatus.SERVICE_UNAVAILABLE)
+            self.send_header("Retry-After", "5")
+            body = (f"the viewer serves at most {srv.max_streams} event streams at once; try again later\n").encode()
+            self.send_header("Content-Type", "text/plain")
+            self.send_header("Content-Length", str(len(body)))
+            self.send_header("Connection", "close")
+            self.end_headers()
+            self.wfile.write(body)
+            return
         self.send_response(200)
         self.send_header("Content-Type", "text/event-stream")
         self.send_header("Cache-Control", "no-store")
         self.send_header("Connection", "close")
         self.end_headers()
         self.close_connection = True
-        srv = self.server
-        srv.clients += 1
         try:
             self.wfile.write(f"retry: 1000\nevent: hello\ndata: {json.dumps({'title': srv.title})}\n\n".encode())
             sent_windows = -1
@@ -432,4 +465,5 @@ class _Handler(BaseHTTPRequestHandler):
         except (BrokenPipeError, ConnectionResetError, OSError):
             pass  # the page was closed
         finally:
-            srv.clients -= 1
+            with srv._conn_lock:
+                srv.clients -= 1

@@ -103,7 +103,12 @@ class ViewerState:
     kept. The event image is at most ``max_image_side`` px wide and high: a larger sensor is
     shown downsampled by the smallest integer factor that fits (``image.scale`` in the
     snapshot; the overlay stays in sensor px), so a window declaring a 65535 x 65535 px sensor
-    costs no more memory than a real one.
+    costs no more memory than a real one. The image draws at most ``max_window_events`` events
+    of a window (a window of more, such as a valid 9 KB window of 10 M events, is subsampled
+    deterministically: one event of each run of k in its order, the smallest k that fits;
+    counted in ``counts["subsampled"]``) and at most ``max_events`` in all (the oldest windows go first, by
+    the events they declare, so the decoding a render needs is bounded too); ``image.drawn`` in
+    the snapshot is the number of events the latest render drew.
     """
 
     def __init__(self, camera: str | None = None, accumulate_us: int = 100_000,
@@ -111,7 +116,7 @@ class ViewerState:
                  robot_size_m: tuple[float, float] = (0.10, 0.10), telemetry_len: int = 200,
                  track_timeout_s: float = 3.0, status_timeout_s: float = 5.0,
                  max_windows: int = 1000, max_events: int = 4_000_000, gt_clock: str = "auto",
-                 max_tracks: int = 200, max_image_side: int = 2048,
+                 max_tracks: int = 200, max_image_side: int = 2048, max_window_events: int = 1_000_000,
                  clock: Callable[[], float] = time.monotonic):
         self.camera = camera
         self.accumulate_us = int(accumulate_us)
@@ -124,8 +129,8 @@ class ViewerState:
         if gt_clock not in ("auto", "sensor", "host"):
             raise ViewerConfigError(f"gt_clock must be 'auto', 'sensor' or 'host', got {gt_clock!r}")
         self.gt_clock = gt_clock
-        if max_tracks < 1 or max_image_side < 1:
-            raise ViewerConfigError("max_tracks and max_image_side must be >= 1")
+        if max_tracks < 1 or max_image_side < 1 or max_window_events < 1 or max_events < 1:
+            raise ViewerConfigError("max_tracks, max_image_side, max_window_events and max_events must be >= 1")
         self.max_tracks, self.max_image_side = int(max_tracks), int(max_image_side)
         self._now = clock
         self._lock = threading.Lock()
@@ -134,6 +139,10 @@ class ViewerState:
         #: with one end time, or a camera stamping 1 µs windows): the oldest go first
         self.max_windows, self.max_events = int(max_windows), int(max_events)
         self._n_events = 0
+        #: events drawn of one window: a window declaring more is subsampled (never more than the total)
+        self.max_window_events = min(int(max_window_events), self.max_events)
+        self._drawn = 0                     # events the latest render drew (a gauge)
+        self._render_lock = threading.Lock()  # one render at a time: a window is decoded once
         self._size: tuple[int, int] | None = None
         self._cam_info: dict = {}
         # least recently updated first (updates move an entry to the end): expiry and eviction
@@ -145,7 +154,7 @@ class ViewerState:
         self._status: OrderedDict[tuple[str, str], tuple[Status, float]] = OrderedDict()
         self._alive: OrderedDict[tuple[str, str], None] = OrderedDict()
         self.counts = {"windows": 0, "tracks": 0, "groundtruth": 0, "telemetry": 0, "status": 0, "bad": 0,
-                       "bad_keys": 0, "evicted": 0}
+                       "bad_keys": 0, "evicted": 0, "subsampled": 0}
         self.frame_no = 0
 
     # -- inputs -------------------------------------------------------------------------------
@@ -389,7 +398,7 @@ class ViewerState:
             return {
                 "time_ns": time.time_ns(), "frame_no": self.frame_no,
                 "image": {"width": w, "height": h, "scale": self._scale(w, h), "events": n_events,
-                          "windows": len(self._windows),
+                          "windows": len(self._windows), "drawn": self._drawn,
                           "accumulate_ms": self.accumulate_us / 1000, **self._cam_info},
                 "calibrated": self.H is not None, "arena_size_m": list(self.arena_size_m),
                 "tracks": tracks, "groundtruth": gts, "telemetry": telemetry, "services": services,
@@ -415,21 +424,44 @@ class ViewerState:
         f = self._scale(w, h)
         wi, hi = -(-w // f), -(-h // f)
         flat = np.zeros(hi * wi, np.uint8)
-        for win in wins:
-            if win.events is None:
-                try:
-                    ev = codec.decode(win.msg.codec, win.msg.data, win.msg.count)
-                    ev = ev[(ev["x"] < w) & (ev["y"] < h)]
-                    xs, ys = ev["x"].astype(np.intp), ev["y"].astype(np.intp)
-                    if f > 1:
-                        xs, ys = xs // f, ys // f
-                    win.events = (ys * wi + xs, 2 - (ev["p"] & 1))
-                except codec.CodecError:
-                    win.events = (np.empty(0, np.intp), np.empty(0, np.uint8))
-                    self.on_bad()
-            pos, colour = win.events
-            flat[pos] = colour  # in time order: the latest event of a pixel wins
+        drawn = 0
+        with self._render_lock:   # (concurrent renders would each decode the same new windows)
+            for win in wins:
+                if win.events is None:
+                    win.events = self._decode(win.msg, w, h, f, wi)
+                pos, colour = win.events
+                flat[pos] = colour  # in time order: the latest event of a pixel wins
+                drawn += pos.size
+        with self._lock:
+            self._drawn = drawn
         return flat.reshape(hi, wi)
+
+    def _decode(self, msg: EventWindow, w: int, h: int, f: int, wi: int) -> tuple[np.ndarray, np.ndarray]:
+        """A window's events as (flat pixel index, palette index), at most ``max_window_events``
+        of them (one of each run of k in the window's order beyond that); none if it cannot be decoded."""
+        try:
+            ev = codec.decode(msg.codec, msg.data, msg.count)
+        except codec.CodecError:
+            self.on_bad()
+            return np.empty(0, np.int32), np.empty(0, np.uint8)
+        if ev.size > self.max_window_events:
+            # one event of each run of k in the window's order (k the smallest that fits), at a
+            # place in its run drawn from a generator seeded by the window's seq: deterministic,
+            # in time order, and unlike every k-th event not in step with a regular pattern
+            # (every other event of a scan would be every other column)
+            k = -(-ev.size // self.max_window_events)
+            starts = np.arange(0, ev.size, k)
+            pick = starts + np.random.default_rng(abs(msg.seq)).integers(0, k, starts.size)
+            ev = ev[np.minimum(pick, ev.size - 1)]
+            with self._lock:
+                self.counts["subsampled"] += 1
+        xs, ys = ev["x"], ev["y"]
+        inside = (xs < w) & (ys < h)
+        xs, ys = xs[inside].astype(np.int32), ys[inside].astype(np.int32)  # 2048 x 2048 at most: int32 fits
+        if f > 1:
+            xs //= f
+            ys //= f
+        return ys * wi + xs, (2 - (ev["p"][inside] & 1)).astype(np.uint8)
 
     def render_frame(self) -> np.ndarray | None:
         """The accumulated event image (H x W x 3, RGB uint8): ON black, OFF blue, no event white;

@@ -98,31 +98,42 @@ def test_foreign_host_refused_idle_closed_streams_kept_alive(view):
 
 
 @pytest.mark.parametrize("view", [("--idle-timeout", "20", "--rate", "1")], indirect=True)
-def test_the_65th_connection_is_refused_at_once_when_64_are_busy(view):
-    """64 event streams (busy: they never wait for a request, so none is replaced) fill the
-    default bound; the 65th connection gets 503 at once; a closed stream frees its place."""
+def test_event_streams_fill_at_most_56_of_the_64_connections_and_pages_are_still_served(view):
+    """56 event streams (busy: they never wait for a request, so none is replaced) fill the
+    streams' share of the default 64 connections; the 57th stream gets 503 at once, a page and
+    /state.json are still served, and a closed stream frees its place."""
     held = []
+
+    def get_state() -> bytes:
+        with view.connect() as s:
+            s.sendall(f"GET /state.json HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\nConnection: close\r\n\r\n".encode())
+            return _read_all(s)
+
     try:
-        for _ in range(64):
+        for _ in range(56):
             s = view.connect()
             s.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\n\r\n".encode())
             assert s.recv(12) == b"HTTP/1.1 200"
             held.append(s)
         with view.connect() as extra:
+            extra.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\n\r\n".encode())
             t0 = time.monotonic()
-            reply = _read_all(extra)
+            head = _read_all(extra)
             assert time.monotonic() - t0 < 5
-        assert reply.startswith(b"HTTP/1.1 503"), reply[:200]
-        assert b"at most 64 connections" in reply
-        # a closed connection frees its place (bounded poll)
+        assert head.startswith(b"HTTP/1.1 503"), head[:200]
+        assert b"at most 56 event streams" in head, head[:400]
+        assert get_state().startswith(b"HTTP/1.1 200")          # the reserved connections serve pages
+        # a closed stream frees its place (bounded poll)
         held.pop(0).close()
         deadline = time.monotonic() + 10
         while True:
-            with view.connect() as s:
-                s.sendall(f"GET /state.json HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\nConnection: close\r\n\r\n".encode())
-                if _read_all(s).startswith(b"HTTP/1.1 200"):
-                    break
-            assert time.monotonic() < deadline, "no connection was served after one of 64 closed"
+            s = view.connect()
+            s.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{view.port}\r\n\r\n".encode())
+            if s.recv(12) == b"HTTP/1.1 200":
+                held.append(s)
+                break
+            s.close()
+            assert time.monotonic() < deadline, "no stream was served after one of 56 closed"
             time.sleep(0.05)
     finally:
         for s in held:

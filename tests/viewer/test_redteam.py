@@ -199,7 +199,8 @@ def test_slow_clients_holding_every_connection_do_not_lock_out_a_request(served)
             s.close()
 
 
-@pytest.mark.parametrize("served", [(ViewerState(), {"max_connections": 2, "period_s": 0.5})], indirect=True)
+@pytest.mark.parametrize("served", [(ViewerState(), {"max_connections": 2, "max_streams": 2, "period_s": 0.5})],
+                         indirect=True)
 def test_event_streams_are_not_evicted_when_all_connections_are_busy_a_new_one_gets_503(served):
     streams = []
     try:
@@ -211,7 +212,7 @@ def test_event_streams_are_not_evicted_when_all_connections_are_busy_a_new_one_g
         with served.connect() as extra:
             reply = _read_all(extra)
         assert reply.startswith(b"HTTP/1.1 503") and b"at most 2 connections" in reply
-        assert served.server.refused == {"host": 0, "busy": 1, "slow": 0, "evicted": 0}
+        assert served.server.refused == {"host": 0, "busy": 1, "slow": 0, "evicted": 0, "streams": 0}
         for s in streams:   # still streaming
             s.settimeout(5)
             assert s.recv(65536)
@@ -265,3 +266,101 @@ def test_floods_of_robot_and_service_names_are_bounded_too():
     snap = st.snapshot()
     assert sorted(snap["telemetry"]) == sorted(f"r{i}" for i in range(950, 1000))
     assert len(snap["services"]) == 100 and st.counts["evicted"] == 3 * 950
+
+
+def _stream_request(served: Served) -> socket.socket:
+    s = served.connect()
+    s.sendall(f"GET /events HTTP/1.1\r\nHost: 127.0.0.1:{served.server.port}\r\n\r\n".encode())
+    return s
+
+
+@pytest.mark.parametrize("served", [(ViewerState(), {"max_connections": 4, "period_s": 0.5, "idle_timeout_s": 20})],
+                         indirect=True)
+def test_event_streams_leave_connections_for_pages_and_state(served):
+    """Live event streams on every connection but the reserve: a stream more gets 503 at once
+    (counted) and the page and /state.json are still served (they had got 503 for as long as the
+    streams stayed open)."""
+    srv = served.server
+    assert srv.max_streams == 3   # 4 connections, one kept back
+    streams = []
+    try:
+        for _ in range(3):
+            s = _stream_request(served)
+            assert s.recv(12) == b"HTTP/1.1 200"
+            streams.append(s)
+        with _stream_request(served) as extra:
+            extra.settimeout(10)
+            reply = b""
+            while b"\r\n\r\n" not in reply and len(reply) < 65536:   # the head (a stream never ends)
+                chunk = extra.recv(65536)
+                assert chunk, reply
+                reply += chunk
+            assert reply.startswith(b"HTTP/1.1 503"), reply[:200]
+            reply += _read_all(extra)
+        assert b"at most 3 event streams" in reply, reply[:300]
+        assert srv.refused == {"host": 0, "busy": 0, "slow": 0, "evicted": 0, "streams": 1}
+        for path in ("/state.json", "/", "/state.json"):
+            status, body = served.request(path)
+            assert status == 200 and body, (path, status)
+        assert srv.clients == 3 and srv.refused["busy"] == 0
+        for s in streams:   # still streaming
+            s.settimeout(5)
+            assert s.recv(65536)
+        # a closed stream frees its place for another (bounded poll)
+        streams.pop(0).close()
+        assert _poll(lambda: srv.clients == 2)
+        s = _stream_request(served)
+        streams.append(s)
+        assert s.recv(12) == b"HTTP/1.1 200" and srv.refused["streams"] == 1
+    finally:
+        for s in streams:
+            s.close()
+
+
+@pytest.mark.parametrize("bad", [{"max_connections": 4, "max_streams": 0}, {"max_connections": 4, "max_streams": 5}])
+def test_a_stream_bound_outside_the_connections_is_refused(bad):
+    with pytest.raises(ValueError, match="max_streams"):
+        ViewerServer(ViewerState(), "127.0.0.1", 0, **bad)
+
+
+# ---- 4. valid windows of millions of events ---------------------------------------------------------
+def _scan_window(n: int, seq: int, t_end_us: int) -> EventWindow:
+    """A valid window of ``n`` events scanning a 640 x 480 sensor row by row, again and again
+    (ON and OFF alternating), coded with the default codec."""
+    i = np.arange(n)
+    ev = make_events(i % 640, (i // 640) % 480, (i // (640 * 480)) & 1, np.full(n, t_end_us - 1))
+    return EventWindow(camera="c0", seq=seq, t_start_us=t_end_us - 10_000, t_end_us=t_end_us, width=640, height=480,
+                       count=n, codec=codec.DEFAULT_CODEC, data=codec.encode(ev), publish_ns=1)
+
+
+@pytest.fixture(scope="module")
+def scan_windows():
+    return [_scan_window(2_000_000, seq, 3_000_000 + 10_000 * seq) for seq in range(3)]
+
+
+def test_windows_of_millions_of_events_are_drawn_within_the_event_budget(scan_windows):
+    st = ViewerState(max_window_events=1_000_000, max_events=4_000_000)
+    for m in scan_windows:
+        handle_sample(st, "arena/events/c0", m.encode())
+    index = st.render_index()
+    kept = [w.events[0].size for w in st._windows]
+    # the oldest window went (6 M declared > 4 M); each kept one is drawn from 1 M of its 2 M events
+    assert kept == [1_000_000, 1_000_000], kept
+    img = st.snapshot()["image"]
+    assert img["drawn"] == 2_000_000 and img["events"] == 4_000_000 and img["windows"] == 2
+    assert st.counts["subsampled"] == 2 and st.counts["bad"] == 0
+    # the subsample is not in step with the scan (every other event would be every other column):
+    # nearly every pixel (each has 6-7 events in a window) is drawn, ON and OFF as the scan left them
+    assert np.count_nonzero(index) > 0.95 * 640 * 480
+    assert set(np.unique(index)) <= {0, 1, 2} and np.count_nonzero(index == 1) > 0 and np.count_nonzero(index == 2) > 0
+    # deterministic: the same windows give the same image; a later render decodes nothing again
+    st2 = ViewerState(max_window_events=1_000_000, max_events=4_000_000)
+    for m in scan_windows:
+        st2.on_window(m)
+    assert np.array_equal(st2.render_index(), index)
+    assert np.array_equal(st.render_index(), index) and st.counts["subsampled"] == 2
+    # a window within the budget is drawn whole
+    st3 = ViewerState(max_window_events=4_000_000)
+    st3.on_window(scan_windows[0])
+    st3.render_index()
+    assert st3.snapshot()["image"]["drawn"] == 2_000_000 and st3.counts["subsampled"] == 0
