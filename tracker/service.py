@@ -28,9 +28,14 @@
   looping; tracking starts afresh), ``windows_future`` and ``windows_past`` (windows held, not
   processed, because they jumped more than 1 s ahead of the stream, beyond what the host clock
   and the newest window received explain, or back: a jump or a restart is taken only when
-  :attr:`LiveTracker.JUMP_CONFIRM` = 3 consecutive windows agree, so one window stamped far off
-  neither resets the tracker nor publishes tracks with its stamp; logged at the first and every
-  100th); windows refused as bad or held are not counted again in ``windows_missed``; gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
+  :attr:`LiveTracker.JUMP_CONFIRM` = 3 consecutive windows agree with each other and with the host
+  clock (each advancing in sensor time about as much as the host time between them) over at least
+  0.5 s of host time, so neither one window stamped far off nor a burst of forged ones resets the
+  tracker or publishes tracks with its stamp; logged at the first and every
+  100th); ``windows_subsampled`` and ``events_subsampled`` (a window above the event budget,
+  every pixel at 100 Hz: a flash or a crafted window, evenly subsampled to it before the
+  pipeline, so tracking stays real-time), ``windows_over_budget`` (one claiming more than 4
+  budgets: refused undecoded); windows refused as bad or held are not counted again in ``windows_missed``; gauges ``robots``, ``process_ms`` and ``latency_ms`` (edge publish to
   track publish, host clocks), ``tracker`` and ``detector`` (the method in use: ``fleet`` or
   ``idtrack``, ``default`` or ``paper``).
 - Restarts: the fleet tracker's state (:meth:`tracker.fleet.FleetTracker.snapshot`: IDs,
@@ -300,8 +305,30 @@ class LiveTracker:
     #: this many consecutive windows agree on it (each following the previous one by at most
     #: ``JUMP_US``): one window stamped far off (a corrupt or hostile sender) neither resets the
     #: tracker nor publishes tracks with its stamp; the ones before it are counted in
-    #: ``windows_future`` or ``windows_past``. A real restart costs the first two windows (20 ms)
+    #: ``windows_future`` or ``windows_past``. A real restart costs the windows of the first ~0.5 s (below)
     JUMP_CONFIRM = 3
+    #: ... and only when those windows also agree with the host clock: each follows the previous
+    #: one in sensor time by about as much as the host time between them (within
+    #: :attr:`JUMP_TOL_US` + :attr:`JUMP_TOL_FRAC` of it; the whole run too), and they span at
+    #: least :attr:`JUMP_HOST_SPAN_US` of host time. A burst of forged windows (3, or any number,
+    #: sent at once) never passes; a really restarted camera, which streams on continuously, is
+    #: taken after ~0.5 s (its windows held meanwhile: not processed, nothing published with their stamps)
+    JUMP_TOL_US = 200_000
+    JUMP_TOL_FRAC = 0.5
+    JUMP_HOST_SPAN_US = 500_000
+    #: event budget of a window: at most ``max(W*H, EVENT_BUDGET_FLOOR)`` events per
+    #: ``EVENT_BUDGET_PER_US`` (10 ms) of its duration (at most the accumulation time counts), i.e.
+    #: every pixel firing at 100 Hz at once (30.7 Mev/s at 640x480, 92 Mev/s at 1280x720). A lab
+    #: scene of ground robots makes well under 10 Mev/s; only a flash (lights switched, the camera
+    #: knocked) or a crafted window exceeds it, and those carry no robot information: the window is
+    #: subsampled deterministically (evenly strided, time order kept) down to the budget
+    #: (``windows_subsampled``, ``events_subsampled``) and tracking goes on in real time
+    EVENT_BUDGET_PER_US = 10_000
+    EVENT_BUDGET_FLOOR = 100_000
+    #: ... and a window claiming more than this many budgets (123 Mev/s at 640x480) is not even
+    #: decoded (decoding 10 M events costs ~0.3-0.5 s of CPU, a crafted window 9 kB): refused,
+    #: ``windows_over_budget``, tracking goes on with the next window
+    EVENT_BUDGET_REFUSE = 4
     #: a seq jump by more than this (1000 s of 10 ms windows) is a sequence reset (a restarted or
     #: corrupt sender), counted in ``sequence_resets``, not that many windows missed
     MAX_SEQ_GAP = 100_000
@@ -355,7 +382,12 @@ class LiveTracker:
         # a run of windows that jumped far from the stream: [n, "future"/"past", last t_end, first t_start]
         self._jump: list | None = None
         self._held_logged = 0              # windows held so far, for rate-limited logging
+        self._subsampled = 0               # windows subsampled to the event budget, for logging
+        self._over_budget = 0              # windows refused undecoded above EVENT_BUDGET_REFUSE budgets
         self._last_now_ns: int | None = None   # host time when the last window was taken, ns
+        # the stream's freshest relation to the host clock: max over the windows taken of their
+        # end (sensor µs) - the host time they were taken (µs); reset when the stream restarts
+        self._offset_us: int | None = None
         #: windows the worker's queue holds (set by :func:`run`): how far the newest window
         #: received may legitimately be ahead of the last one processed
         self.queue_windows = 100
@@ -488,15 +520,22 @@ class LiveTracker:
         last = self.pipeline.last_t_us
         if now_ns is not None and last is not None:
             span = max(0, win.t_end_us - win.t_start_us) * max(1, self.queue_windows)
-            if win.t_end_us - last > self.JUMP_US + span + self._host_elapsed_us(now_ns):
+            if self._beyond_stream_us(win.t_end_us, now_ns) > self.JUMP_US + span:
                 return None
         return win.t_end_us
 
-    def _host_elapsed_us(self, now_ns: int) -> int:
-        """Host time since the last window was taken, µs (0 if unknown or going back)."""
-        if self._last_now_ns is None:
-            return 0
-        return max(0, (int(now_ns) - self._last_now_ns) // 1000)
+    def _beyond_stream_us(self, t_us: int, now_ns: int | None) -> int:
+        """How far (µs) sensor time ``t_us`` is ahead of where the stream is now by the host
+        clock: the stream's freshest relation to the host clock (the largest ``t_end - host``
+        of the windows taken, host time never going back) carried to ``now_ns``. A backlog
+        delivered late (a stalled worker, a congested link, a full queue dropping windows)
+        only lags that relation; a window stamped in the future leads it. Without a window
+        taken yet: ahead of the pipeline's last time."""
+        last = self.pipeline.last_t_us
+        if self._offset_us is None or now_ns is None:
+            return int(t_us) - (last if last is not None else int(t_us))
+        now_us = max(int(now_ns), self._last_now_ns or int(now_ns)) // 1000
+        return int(t_us) - (now_us + self._offset_us)
 
     def _held_jump(self, win: EventWindow, now_ns: int, newest_end_us: int | None) -> bool:
         """Whether ``win`` is held (not processed) because it jumped far from the stream: it
@@ -508,8 +547,7 @@ class LiveTracker:
         last = self.pipeline.last_t_us
         kind = None
         if last is not None:
-            ahead = win.t_start_us - last
-            if (ahead > self.JUMP_US + self._host_elapsed_us(now_ns)
+            if (self._beyond_stream_us(win.t_start_us, now_ns) > self.JUMP_US
                     and not (newest_end_us is not None and win.t_end_us <= newest_end_us)):
                 kind = "future"
             elif win.t_end_us < last - self.RESTART_US and self.make_pipeline is not None:
@@ -518,16 +556,22 @@ class LiveTracker:
         if kind is None:
             self._jump = None   # the stream goes on: whatever jumped was a stray window
             return False
-        if run is not None and run[1] == kind and run[2] < win.t_end_us <= run[2] + self.JUMP_US:
+        now_us = int(now_ns) // 1000
+        if (run is not None and run[1] == kind and run[2] < win.t_end_us <= run[2] + self.JUMP_US
+                and self._agrees_with_host(win.t_end_us - run[2], now_us - run[5])):
             run[0] += 1
             run[2] = win.t_end_us
+            run[5] = now_us
         else:
-            run = self._jump = [1, kind, win.t_end_us, win.t_start_us]
-        if run[0] >= self.JUMP_CONFIRM:
+            # [n, kind, last t_end, first t_start, first t_end, host µs of the last, host µs of the first]
+            run = self._jump = [1, kind, win.t_end_us, win.t_start_us, win.t_end_us, now_us, now_us]
+        host_span = run[5] - run[6]
+        if (run[0] >= self.JUMP_CONFIRM and host_span >= self.JUMP_HOST_SPAN_US
+                and self._agrees_with_host(run[2] - run[4], host_span)):
             self._jump = None
-            log.warning("camera %s: %d consecutive windows agree that its clock jumped %s (%d µs after %d µs): "
-                        "taken as the new time", self.camera, run[0], "ahead" if kind == "future" else "back",
-                        run[3], last)
+            log.warning("camera %s: %d consecutive windows over %.2f s of host time agree that its clock jumped %s "
+                        "(%d µs after %d µs): taken as the new time", self.camera, run[0], host_span / 1e6,
+                        "ahead" if kind == "future" else "back", run[3], last)
             return False
         key = "windows_future" if kind == "future" else "windows_past"
         self._count(key)
@@ -535,9 +579,18 @@ class LiveTracker:
         if self._held_logged == 1 or self._held_logged % 100 == 0:
             log.warning("camera %s: window seq %d (%d..%d µs) jumped %s from the stream (last window ended %d µs): "
                         "held, not processed (counted in %s, %d so far); a jump is taken only when %d consecutive "
-                        "windows agree", self.camera, win.seq, win.t_start_us, win.t_end_us,
-                        "ahead" if kind == "future" else "back", last, key, self._held_logged, self.JUMP_CONFIRM)
+                        "windows agree, with each other and with the host clock, over %.1f s",
+                        self.camera, win.seq, win.t_start_us, win.t_end_us,
+                        "ahead" if kind == "future" else "back", last, key, self._held_logged, self.JUMP_CONFIRM,
+                        self.JUMP_HOST_SPAN_US / 1e6)
         return True
+
+    def _agrees_with_host(self, sensor_us: int, host_us: int) -> bool:
+        """Whether a sensor-time advance agrees with the host time over the same windows (within
+        :attr:`JUMP_TOL_US` + :attr:`JUMP_TOL_FRAC` of the host time); host time going back never does."""
+        if host_us < 0:
+            return False
+        return abs(sensor_us - host_us) <= self.JUMP_TOL_US + self.JUMP_TOL_FRAC * host_us
 
     def _end_skip_run(self) -> None:
         n, t0, t1, newest, queue = self._skipped
@@ -570,7 +623,9 @@ class LiveTracker:
             return []
         self._count_seq_gap(win, now_ns, dropped_in_queue)
         self._refused = 0
-        self._last_now_ns = int(now_ns)
+        self._last_now_ns = max(int(now_ns), self._last_now_ns or int(now_ns))   # host time never going back
+        off = int(win.t_end_us) - self._last_now_ns // 1000
+        self._offset_us = off if self._offset_us is None else max(self._offset_us, off)
         self.last_seq = win.seq
         self.sensor_to_host_ns = win.sensor_to_host_ns
         self._last_dropped = win.dropped
@@ -580,6 +635,7 @@ class LiveTracker:
             return []
         if not self._events_fit(win, events):
             return []
+        events = self._within_budget(win, events, acc)
         t0 = time.perf_counter()
         try:
             tracks = self.pipeline.push(events, win.t_end_us)
@@ -611,6 +667,17 @@ class LiveTracker:
             if (win.width, win.height) != self.size:
                 raise MessageError(f"window is {win.width}x{win.height} px but the calibration is "
                                    f"{self.size[0]}x{self.size[1]} px")
+            budget = self.event_budget(win, self.pipeline.accumulation_us)
+            if win.count > self.EVENT_BUDGET_REFUSE * budget:
+                self._count("windows_over_budget")
+                self._refused += 1   # counted here: not again as missed in the next seq gap
+                self._over_budget += 1
+                if self._over_budget == 1 or self._over_budget % 100 == 0:
+                    log.warning("camera %s: window seq %d claims %d events in %d µs, more than %d x the event "
+                                "budget of %d: refused undecoded (counted in windows_over_budget, %d so far)",
+                                self.camera, win.seq, win.count, win.t_end_us - win.t_start_us,
+                                self.EVENT_BUDGET_REFUSE, budget, self._over_budget)
+                return None
             events = decode(win.codec, bytes(win.data), win.count)
         except (MessageError, CodecError) as exc:
             self._bad("windows_bad", f"corrupt event window skipped: {exc}")
@@ -628,7 +695,7 @@ class LiveTracker:
             log.warning("camera %s restarted its clock (%d µs after %d µs): tracking afresh",
                         self.camera, win.t_end_us, last)
             self.pipeline = self.make_pipeline()
-            self.last_seq = self._last_dropped = None
+            self.last_seq = self._last_dropped = self._offset_us = None
             last = None
         if last is not None and win.t_end_us <= last:
             self._bad("windows_late", f"out-of-order window seq {win.seq} (ends {win.t_end_us} µs, "
@@ -699,6 +766,37 @@ class LiveTracker:
             if late:
                 self._count("events_late", late)
         return True
+
+    def event_budget(self, win: EventWindow, acc: int) -> int:
+        """Most events of ``win`` fed to the pipeline: ``max(W*H, EVENT_BUDGET_FLOOR)`` per
+        ``EVENT_BUDGET_PER_US`` of its duration, counted at least one such period and at most the
+        accumulation time ``acc`` (a window claiming a long span gains nothing beyond what the
+        pipeline keeps)."""
+        w, h = self.size
+        per = max(w * h, self.EVENT_BUDGET_FLOOR)
+        dur = min(max(int(win.t_end_us) - int(win.t_start_us), self.EVENT_BUDGET_PER_US), max(int(acc), 1))
+        dur = max(dur, 1)
+        return max(1, (per * dur) // self.EVENT_BUDGET_PER_US)
+
+    def _within_budget(self, win: EventWindow, events: np.ndarray, acc: int) -> np.ndarray:
+        """``events``, or if they exceed :meth:`event_budget` (a flash or a crafted window: above
+        any sensor's rate in normal operation), an evenly strided subset of exactly the budget
+        (deterministic, time order kept), counted in ``windows_subsampled`` and
+        ``events_subsampled`` and logged at the first and every 100th."""
+        budget = self.event_budget(win, acc)
+        n = int(events.size)
+        if n <= budget:
+            return events
+        keep = (np.arange(budget, dtype=np.int64) * n) // budget
+        out = events[keep]
+        self._count("windows_subsampled")
+        self._count("events_subsampled", n - budget)
+        self._subsampled += 1
+        if self._subsampled == 1 or self._subsampled % 100 == 0:
+            log.warning("camera %s: window seq %d holds %d events in %d µs, above the budget of %d (every pixel "
+                        "at 100 Hz): subsampled to %d (a flash or a crafted window; %d window(s) so far)",
+                        self.camera, win.seq, n, win.t_end_us - win.t_start_us, budget, budget, self._subsampled)
+        return out
 
     def _withheld_while_rebuilding(self, win: EventWindow, tracks: list, acc: int) -> bool:
         """Whether ``win``'s tracks are withheld (``tracks_withheld``) because the pipeline's
