@@ -1,4 +1,4 @@
-"""The fuzz suite in CI (bounded: ~1.5 min on 2 cores): every decoder of untrusted bytes
+"""The fuzz suite in CI (bounded: about a minute on 2 cores): every decoder of untrusted bytes
 (messages, the window codec, every event file reader, the robot serial protocol, mission commands,
 the tracker's state file, calibration JSON, the lab config) fed hypothesis-mutated inputs in a child process
 whose address space is capped at 256 MiB over its warmed-up baseline, one input at most 10 s.
