@@ -42,6 +42,9 @@ log = logging.getLogger("robot_bridge")
 #: Latest start of a mission after its command, s: a fleet starts together a few seconds ahead;
 #: a start hours away is a clock mix-up, and the robot would stay "busy" until stopped.
 MAX_START_DELAY_S = 600.0
+#: Largest |x|, |y| of a given start pose, m: a lab arena is a few metres (a yaw of 7.6e11 rad,
+#: found by the fuzz suite, laid out turns that disagreed with the mission's own size check).
+MAX_POSE_M = 100.0
 
 
 class CommandError(Exception):
@@ -280,8 +283,14 @@ class RobotHandle:
                         or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                                    for v in known_start)):
                     raise CommandError(f"bad parameter: start_pose must be [x_m, y_m, yaw_rad], got {known_start!r}")
+                if not (abs(known_start[0]) <= MAX_POSE_M and abs(known_start[1]) <= MAX_POSE_M
+                        and abs(known_start[2]) <= 2 * math.pi):
+                    raise CommandError(f"bad parameter: start_pose {known_start!r}: x and y within +-{MAX_POSE_M:g} m "
+                                       "(the arena frame), yaw_rad within +-2 pi")
+                known_start = [float(known_start[0]), float(known_start[1]),
+                               math.atan2(math.sin(known_start[2]), math.cos(known_start[2]))]
                 if not fresh:
-                    self.estimator.set_pose(tuple(float(v) for v in known_start))
+                    self.estimator.set_pose(tuple(known_start))
             if cmd.control == "closed" and not fresh and known_start is None:
                 raise CommandError(f"bad parameter: control=closed needs a track of {self.name} on {ALL_ROBOTS} "
                                    "and none came yet (a standing robot gives no events: drive it a little, "
