@@ -7,7 +7,6 @@ Longer runs: ``python bench/fuzz.py --minutes N`` or ``--examples-per-target N``
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 
@@ -91,17 +90,28 @@ def test_a_state_file_with_a_huge_integer_is_refused_with_the_declared_error():
 
 def test_a_start_pose_with_an_absurd_yaw_is_refused_and_a_wide_one_wrapped():
     """Found by the ``mission`` target (100 000-input run): a waypoint mission with start_pose
-    yaw 7.6e11 rad was laid out with turns 5 µm longer than its own size check allowed."""
-    from arena.messages import MissionCommand
-    from robot_bridge.core import CommandError
-    from tests.fuzz.targets import _check_mission, _mission_handle
+    yaw 7.6e11 rad was laid out with turns 5 µm longer than its own size check allowed.
+    Run in a child process: the target's handle replaces the bridge's mission log with a null
+    one for the whole process (it broke the bridge tests run after it in the same session)."""
+    r = run_bounded("import math", """
+        from arena.messages import MissionCommand
+        from robot_bridge.core import CommandError
+        from tests.fuzz.targets import _check_mission, _mission_handle
 
-    pts = [[0.3, 0.3], [1.5, 0.3], [1.5, 1.5], [0.3, 0.3]]
-    cmd = MissionCommand(mission="waypoints", params={"points": pts, "start_pose": [0.2, 0.2, 765620052808.0]})
-    with pytest.raises(CommandError, match=r"yaw_rad within \+-2 pi"):
-        _mission_handle().start_mission(cmd)
-    _check_mission(cmd.encode())            # the target's whole contract holds on it
-    wide = MissionCommand(mission="waypoints", params={"points": pts, "start_pose": [0.2, 0.2, 6.0]})
-    h = _mission_handle()
-    h.start_mission(wide)
-    assert h.runner.mission.start[2] == pytest.approx(6.0 - 2 * math.pi)
+        pts = [[0.3, 0.3], [1.5, 0.3], [1.5, 1.5], [0.3, 0.3]]
+        cmd = MissionCommand(mission="waypoints", params={"points": pts, "start_pose": [0.2, 0.2, 765620052808.0]})
+        try:
+            _mission_handle().start_mission(cmd)
+            print("accepted")
+        except CommandError as exc:
+            print("refused:", exc)
+        _check_mission(cmd.encode())            # the target's whole contract holds on it
+        wide = MissionCommand(mission="waypoints", params={"points": pts, "start_pose": [0.2, 0.2, 6.0]})
+        h = _mission_handle()
+        h.start_mission(wide)
+        print("yaw", repr(h.runner.mission.start[2] - (6.0 - 2 * math.pi)))
+        """)
+    assert r.returncode == 0, r.stdout + r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].startswith("refused:") and "yaw_rad within +-2 pi" in lines[0], r.stdout
+    assert abs(float(lines[1].split()[1])) < 1e-12, r.stdout
