@@ -130,15 +130,12 @@ def _dial_certificate_problem(settings) -> str | None:
     from pathlib import Path
 
     from arena.certs import CertError, allows_client_auth, read_certificate
-    from arena.session import own_endpoints
+    from arena.session import config_value, own_endpoints
 
     conf = settings.to_zenoh_config()
 
     def get(path: str):
-        try:
-            return json.loads(conf.get_json(path))
-        except Exception:  # an unset path
-            return None
+        return config_value(conf, path)
 
     dialled = [e for e in own_endpoints(conf, "router") if e.startswith(("tls/", "quic/"))]
     cert = get("transport/link/tls/connect_certificate")
@@ -317,13 +314,12 @@ def _line(key: str, msg: Message) -> str:
 def _secured(settings) -> bool:
     """Whether ``settings`` (resolved Zenoh settings) log in with a user or over TLS/QUIC: then a
     lab router's access-control list may silently drop what is not allowed."""
+    from arena.session import config_value
+
     conf = settings.to_zenoh_config()
 
     def get(path: str):
-        try:
-            return json.loads(conf.get_json(path))
-        except Exception:  # an unset path
-            return None
+        return config_value(conf, path)
 
     connect = get("connect/endpoints") or []
     if isinstance(connect, dict):  # per-mode values

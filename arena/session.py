@@ -42,8 +42,9 @@ from arena.config import (DEFAULT_ROUTER, LEASE_MS_RANGE, MODES, ConfigError, De
 
 log = logging.getLogger("arena.session")
 
-__all__ = ["DEFAULT_ROUTER", "MODES", "SessionError", "ZenohSettings", "add_zenoh_arguments", "lease_ms",
-           "load_lab_from_args", "open_session", "own_endpoints", "parse_cfg", "resolve_settings", "to_zenoh_config"]
+__all__ = ["DEFAULT_ROUTER", "MODES", "SessionError", "ZenohSettings", "add_zenoh_arguments", "config_value",
+           "lease_ms", "load_lab_from_args", "open_session", "own_endpoints", "parse_cfg", "resolve_settings",
+           "to_zenoh_config"]
 
 
 class SessionError(RuntimeError):
@@ -115,7 +116,7 @@ def to_zenoh_config(settings: ZenohSettings) -> zenoh.Config:
 ZenohSettings.to_zenoh_config = to_zenoh_config  # type: ignore[attr-defined]
 
 
-def _get(conf: zenoh.Config, path: str):
+def config_value(conf: zenoh.Config, path: str):
     """The value at ``path`` of ``conf`` (None when unset)."""
     try:
         return json.loads(conf.get_json(path))
@@ -126,7 +127,7 @@ def _get(conf: zenoh.Config, path: str):
 def own_endpoints(conf: zenoh.Config, mode: str, key: str = "connect") -> list[str]:
     """``conf``'s own ``connect`` (or ``listen``) endpoints for ``mode`` (a Zenoh config may give
     them per mode), as strings; empty when it gives none."""
-    eps = _get(conf, f"{key}/endpoints") or []
+    eps = config_value(conf, f"{key}/endpoints") or []
     if isinstance(eps, dict):
         eps = eps.get(mode) or []
     return [str(e) for e in eps] if isinstance(eps, list) else []
@@ -140,10 +141,10 @@ def _credentials(settings: ZenohSettings) -> str:
     except SessionError:
         return ""
     parts = []
-    user = settings.user or _get(conf, "transport/auth/usrpwd/user")
+    user = settings.user or config_value(conf, "transport/auth/usrpwd/user")
     if user:
         parts.append(f"user {user!r} and its password (user/password authentication; the password is not shown)")
-    tls = {k: _get(conf, f"transport/link/tls/{k}") for k in ("root_ca_certificate", "connect_certificate",
+    tls = {k: config_value(conf, f"transport/link/tls/{k}") for k in ("root_ca_certificate", "connect_certificate",
                                                                  "enable_mtls")}
     if any(e.startswith(("tls/", "quic/")) for e in own_endpoints(conf, settings.mode)):
         files = [f"CA {tls['root_ca_certificate']}" if tls["root_ca_certificate"] else "",
