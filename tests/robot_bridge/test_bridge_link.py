@@ -3,7 +3,6 @@ wheel PID, reconnection, link loss -> watchdog, corruption never logged."""
 
 from __future__ import annotations
 
-import statistics
 import time
 
 import pytest
@@ -21,7 +20,9 @@ from simulator.robot_emulator import LinkFaults, RobotEmulatorServer
 
 def test_wheel_pid_holds_speed_on_the_emulator():
     g = WheelGeometry()
-    pid = WheelPID(g.max_speed_mps)
+    # the PID's feed-forward believes 0.40 m/s at full power, the robot does 0.46: feed-forward
+    # alone would run 15 % fast, so holding the target within 6 % needs the feedback terms
+    pid = WheelPID(0.40)
     target = (0.15, 0.10)
     state = {"prev": None, "speeds": [], "link": None}
 
@@ -35,7 +36,7 @@ def test_wheel_pid_holds_speed_on_the_emulator():
             return
         v = ((fr.msg.enc_left - prev[1]) * g.m_per_count / (t - prev[0]),
              (fr.msg.enc_right - prev[2]) * g.m_per_count / (t - prev[0]))
-        state["speeds"].append((time.monotonic(), *v))
+        state["speeds"].append((t, fr.msg.enc_left, fr.msg.enc_right))
         left, right = pid.update(target, v, t - prev[0])
         state["link"].set_motors(left, right)
 
@@ -44,13 +45,15 @@ def test_wheel_pid_holds_speed_on_the_emulator():
         state["link"] = link
         with link:
             assert link.wait_connected(3), link.last_error
-            # 1.5 s of control at 100 Hz (counted in samples: a loaded machine slows everything)
-            assert wait_for(lambda: len(state["speeds"]) >= 150, 15.0)
-        late = state["speeds"][100:150]
-    # median: the world thread is stepped in real time and a loaded machine makes single samples jumpy
-    med_l = statistics.median(s[1] for s in late)
-    med_r = statistics.median(s[2] for s in late)
-    assert med_l == pytest.approx(0.15, rel=0.06) and med_r == pytest.approx(0.10, rel=0.06)
+            # 3 s of control at 100 Hz (counted in samples: a loaded machine slows everything)
+            assert wait_for(lambda: len(state["speeds"]) >= 300, 20.0)
+        late = state["speeds"][200:300]
+    # mean tread speed over the last 1 s (counts travelled over robot time): one 10 ms sample is
+    # ~15 counts, so a single sample's (or a median's) quantisation alone is +-7 %
+    (t0, l0, r0), (t1, l1, r1) = late[0], late[-1]
+    mean_l = (l1 - l0) * g.m_per_count / (t1 - t0)
+    mean_r = (r1 - r0) * g.m_per_count / (t1 - t0)
+    assert mean_l == pytest.approx(0.15, rel=0.06) and mean_r == pytest.approx(0.10, rel=0.06)
     assert link.stats.rtt_ms is not None and link.stats.missing == 0
 
 
