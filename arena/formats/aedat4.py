@@ -115,14 +115,26 @@ def _packet_events(buf: bytes) -> np.ndarray:
     the file's int16: see :meth:`Aedat4Reader.chunks`)."""
     if len(buf) < 12 or buf[8:12] != b"EVTS":
         raise FormatError("AEDAT4 event packet lacks the EVTS identifier")
+    if _at(buf, "<I", 0) != len(buf) - 4:
+        raise FormatError(f"AEDAT4 event packet's size prefix {_at(buf, '<I', 0)} is not its "
+                          f"{len(buf) - 4} bytes")
     table = 4 + _at(buf, "<I", 4)
     pos = _field(buf, table, 0)
     if pos is None:
+        if len(buf) - table >= 32:     # an element's worth beyond an empty table: a damaged table
+            raise FormatError(f"AEDAT4 event packet of {len(buf)} bytes has no elements field: its table "
+                              "is damaged")
         return np.empty(0, _AEDAT_EVENT)
     vec = pos + _at(buf, "<I", pos)
     n = _at(buf, "<I", vec)
     if vec + 4 + 16 * n > len(buf):
         raise FormatError("AEDAT4 event packet is shorter than its element count says")
+    if len(buf) - (vec + 4 + 16 * n) >= 16:
+        # FlatBuffers are built back to front: the elements vector, written first, ends the buffer
+        # (dv-processing's packets and ours, every compression); whole unread elements after it
+        # mean a damaged count
+        raise FormatError(f"AEDAT4 event packet holds {len(buf) - (vec + 4 + 16 * n)} bytes after its "
+                          f"{n} elements: its element count is damaged")
     return np.frombuffer(buf, _AEDAT_EVENT, count=n, offset=vec + 4)
 
 
@@ -130,7 +142,9 @@ class Aedat4Reader(EventReader):
     """Streaming reader of the first polarity-event stream of an AEDAT 4.0 file (one chunk per packet).
 
     A packet of that stream that does not decompress or parse is skipped and counted in
-    ``skipped`` (also ``skipped_packets``), with a :class:`~arena.formats.base.SkippedData` warning.
+    ``skipped`` (also ``skipped_packets``), with a :class:`~arena.formats.base.SkippedData` warning;
+    so is a packet of a stream id the header does not describe (a damaged id would otherwise drop
+    events without a word). Packets of other described streams (frames, IMU) are skipped silently.
     """
 
     def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> None:
@@ -209,6 +223,10 @@ class Aedat4Reader(EventReader):
                                   f"{end - pos - 8} left)")
             if sid != self.stream_id:
                 self._f.seek(size, 1)
+                if sid not in self.streams:
+                    self._skip(1, "packets of undescribed streams",
+                               f"AEDAT4 packet at byte {pos} of stream {sid}, which the header does not "
+                               f"describe, skipped (the events are stream {self.stream_id})")
                 continue
             body = read_exactly(self._f, size, end, "AEDAT4 packet", self.path)
             try:

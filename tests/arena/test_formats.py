@@ -485,6 +485,36 @@ def test_aedat4_packet_that_does_not_decompress_is_counted_and_reported(tmp_path
     assert f"byte {pos}" in str(reader.warned[0])
 
 
+def test_aedat4_damaged_packet_fields_are_counted_not_silent(tmp_path):
+    # found by flipping every header and first-packet byte of an uncompressed file: each of these
+    # read fewer events with no word (a damaged stream id dropped the packet as "another stream",
+    # a lowered element count or a damaged table read 0..999 of 1000 events)
+    path, ev = _aedat4(tmp_path, compression="none")
+    clean = path.read_bytes()
+    pos, size = _aedat4_packets(clean)[1]
+    body = pos + 8                                  # the packet's FlatBuffer (uncompressed)
+    cases = [
+        # (byte offset, int32 value, warning unit, events kept)
+        (pos, 7, "packets of undescribed streams", "skip"),      # stream id 7: not in the header
+        (body, struct.unpack_from("<I", clean, body)[0] + 16, "corrupt packets", "skip"),  # size prefix
+        (body + 4, 0, "corrupt packets", "skip"),                # root offset: no elements field
+        (body + 28, 990, "corrupt packets", "skip"),             # element count 990 of 1000
+    ]
+    assert struct.unpack_from("<I", clean, body + 28)[0] == 1000     # the layout our writer makes
+    for offset, value, unit, _ in cases:
+        data = bytearray(clean)
+        struct.pack_into("<I", data, offset, value)
+        path.write_bytes(bytes(data))
+        out, reader = _read_quietly(path)
+        np.testing.assert_array_equal(out, np.concatenate([ev[:1000], ev[2000:]]))
+        assert reader.skipped == 1 and [(w.count, w.unit) for w in reader.warned] == [(1, unit)], (offset, value)
+        assert f"byte {pos}" in str(reader.warned[0])
+    path.write_bytes(clean)                         # and the clean file reads whole, with no word
+    out, reader = _read_quietly(path)
+    np.testing.assert_array_equal(out, ev)
+    assert reader.skipped == 0 and reader.warned == []
+
+
 def _xxh32(data: bytes, seed: int = 0) -> int:
     """xxHash32 (LZ4 frame header checksums)."""
     p1, p2, p3, p4, p5, m = 2654435761, 2246822519, 3266489917, 668265263, 374761393, 0xFFFFFFFF
