@@ -32,10 +32,11 @@ _NUMPY_ERRORS = (OSError, ValueError, EOFError, TypeError, SyntaxError, TokenErr
                  zlib.error, lzma.LZMAError, KeyError, OverflowError, NotImplementedError, RuntimeError)
 
 
-def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype, bool]:
-    """Shape, dtype and Fortran-order flag of the ``.npy`` stream at ``fp`` (left at the array's
-    data), refusing (:class:`FormatError`) an array larger than the ``available`` bytes that hold
-    it, before anything is allocated, and arrays that cannot be events."""
+def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype, bool, int]:
+    """Shape, dtype, Fortran-order flag of the ``.npy`` stream at ``fp`` (left at the array's
+    data) and the bytes after the array's data, refusing (:class:`FormatError`) an array larger
+    than the ``available`` bytes that hold it, before anything is allocated, and arrays that
+    cannot be events."""
     fmt = np.lib.format
     version = fmt.read_magic(fp)
     if version == (1, 0):
@@ -55,7 +56,7 @@ def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype, bool]:
         raise FormatError(f"{where}: array of Python objects ({dtype}) is not an event array")
     if fortran and sum(int(d) > 1 for d in shape) > 1:
         raise FormatError(f"{where}: a Fortran-order array of shape {shape} is not an event array")
-    return shape, dtype, bool(fortran)
+    return shape, dtype, bool(fortran), available - fp.tell() - need
 
 
 class _Member:
@@ -65,7 +66,7 @@ class _Member:
     def __init__(self, opener, available: int, where: str) -> None:
         self._opener, self._where = opener, where
         with opener() as f:
-            self.shape, self.dtype, _ = _npy_header(f, available, where)
+            self.shape, self.dtype, _, self.trailing = _npy_header(f, available, where)
             self._offset = f.tell()
         self.size = 1
         for d in self.shape:
@@ -134,6 +135,11 @@ class NumpyReader(EventReader):
         try:
             try:
                 self._open(path)
+                for m in self._members:
+                    if m.trailing:      # numpy writes nothing after the data: a damaged shape
+                        self._skip(m.trailing, "bytes", f"{m.trailing} bytes after the {m.size} elements of "
+                                   f"shape {m.shape} that the .npy header declares are not read (a damaged "
+                                   "header, or data appended)")
                 width = width or self._file_w
                 height = height or self._file_h
                 if not (width and height):

@@ -374,6 +374,25 @@ def test_npy_header_claiming_2_to_the_40_events_is_a_format_error(tmp_path):
         read_events(tmp_path / "tok.npy")
 
 
+@pytest.mark.parametrize("shape", ["(0,)", "(200,)"])
+def test_npy_header_shape_smaller_than_its_data_is_reported_not_silent(tmp_path, shape):
+    # a damaged digit of the shape ("(2000,)" -> "(-000,)" or "(200 ,)") read 0 or 200 of 2000
+    # events with exit 0 and no word
+    ev = _random_events(2000, seed=24)
+    write_events(tmp_path / "ok.npy", ev, 1280, 720)
+    data = (tmp_path / "ok.npy").read_bytes()
+    assert b"'shape': (2000,)" in data
+    (tmp_path / "bad.npy").write_bytes(data.replace(b"'shape': (2000,)", b"'shape': " + shape.encode().ljust(7)))
+    out, reader = _read_quietly(tmp_path / "bad.npy")
+    kept = int(shape[1:-2])
+    np.testing.assert_array_equal(out, ev[:kept] if kept else out[:0])
+    assert reader.skipped == 13 * (2000 - kept)
+    assert [(w.count, w.unit) for w in reader.warned] == [(13 * (2000 - kept), "bytes")]
+    assert "not read" in str(reader.warned[0])
+    out, reader = _read_quietly(tmp_path / "ok.npy")   # numpy's own file: nothing after its data
+    assert out.size == 2000 and reader.skipped == 0 and reader.warned == []
+
+
 def test_damaged_npz_files_are_format_errors(tmp_path):
     ev = _random_events(2000, seed=20)
     write_events(tmp_path / "ok.npz", ev, 1280, 720)
