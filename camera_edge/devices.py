@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import importlib.util
 from dataclasses import dataclass
+from pathlib import Path
 
 
 @dataclass
@@ -51,16 +52,59 @@ def _needs(scheme: str) -> str:
     return "ready (dv-processing found)" if ok else "needs pip install dv-processing and iniVation's udev rules"
 
 
-def list_devices() -> list[Device]:
-    """Attached event cameras. Raises RuntimeError if USB cannot be enumerated (no libusb)."""
+#: Linux's USB device tree: read when libusb is missing (a fresh machine often lacks it)
+SYSFS_USB = Path("/sys/bus/usb/devices")
+
+
+def _sysfs_text(d: Path, name: str) -> str:
+    try:
+        return (d / name).read_text(errors="replace").strip()[:256]
+    except OSError:
+        return ""
+
+
+def sysfs_devices(root: Path = SYSFS_USB) -> list[Device]:
+    """Attached event cameras from Linux's sysfs USB tree (``idVendor``, ``idProduct``,
+    ``busnum``, ``devnum``, ``product``, ``serial`` files of each device folder): no libusb
+    needed. Folders that are not devices (interfaces, unreadable ids) are passed over."""
+    out = []
+    for d in sorted(root.iterdir()):
+        try:
+            vid, pid = int(_sysfs_text(d, "idVendor"), 16), int(_sysfs_text(d, "idProduct"), 16)
+        except ValueError:
+            continue
+        known = identify(vid, pid)
+        if known is None:
+            continue
+        vendor, scheme = known
+        try:
+            bus, addr = int(_sysfs_text(d, "busnum") or 0), int(_sysfs_text(d, "devnum") or 0)
+        except ValueError:
+            bus = addr = 0
+        out.append(Device(vendor, vid, pid, bus, addr, _sysfs_text(d, "product"),
+                          scheme + _sysfs_text(d, "serial"), _needs(scheme)))
+    return out
+
+
+def list_devices(sysfs: Path = SYSFS_USB) -> list[Device]:
+    """Attached event cameras, through pyusb; without a libusb backend, from Linux's ``sysfs``
+    tree. Raises RuntimeError (saying what to install) if USB cannot be enumerated either way."""
+    found, why = None, ""
     try:
         import usb.core
     except ImportError:
-        raise RuntimeError("device discovery needs pyusb: pip install pyusb") from None
-    try:
-        found = list(usb.core.find(find_all=True))
-    except usb.core.NoBackendError:
-        raise RuntimeError("pyusb found no USB backend: install libusb-1.0 (e.g. apt install libusb-1.0-0)") from None
+        why = "pyusb is not installed"
+    else:
+        try:
+            found = list(usb.core.find(find_all=True))
+        except usb.core.NoBackendError:
+            why = "pyusb found no USB backend"
+    if found is None:
+        if sysfs.is_dir():
+            return sysfs_devices(sysfs)
+        raise RuntimeError(f"cannot list USB devices: {why} and there is no {sysfs} (no USB visible here, "
+                           "e.g. a container): install libusb-1.0 (e.g. apt install libusb-1.0-0), "
+                           "or run where the camera is plugged in")
     out = []
     for d in found:
         known = identify(d.idVendor, d.idProduct)
