@@ -66,9 +66,14 @@ def _sysfs_text(d: Path, name: str) -> str:
 def sysfs_devices(root: Path = SYSFS_USB) -> list[Device]:
     """Attached event cameras from Linux's sysfs USB tree (``idVendor``, ``idProduct``,
     ``busnum``, ``devnum``, ``product``, ``serial`` files of each device folder): no libusb
-    needed. Folders that are not devices (interfaces, unreadable ids) are passed over."""
+    needed. Folders that are not devices (interfaces, unreadable ids) are passed over; a tree that
+    cannot be read raises RuntimeError."""
+    try:
+        folders = sorted(root.iterdir())
+    except OSError as exc:
+        raise RuntimeError(f"cannot list USB devices: {root} cannot be read ({exc})") from None
     out = []
-    for d in sorted(root.iterdir()):
+    for d in folders:
         try:
             vid, pid = int(_sysfs_text(d, "idVendor"), 16), int(_sysfs_text(d, "idProduct"), 16)
         except ValueError:

@@ -246,3 +246,5 @@ def test_cameras_are_listed_from_sysfs_without_libusb(tmp_path):
         ("iniVation", 0x152A, 0x8419, 2, 2, "DVXplorer", "inivation:"),
     ]
     assert "-> prophesee:00ca0009" in found[0].describe()
+    with pytest.raises(RuntimeError, match="cannot be read"):   # the CLI prints it, exit 2
+        sysfs_devices(tmp_path / "1-1" / "idVendor")
