@@ -254,19 +254,32 @@ def test_a_recording_cut_short_is_read_up_to_its_last_complete_chunk(tmp_path):
     assert 50 < len(got) < 400 and got == list(range(len(got)))
 
 
-def test_record_counts_every_sample_as_written_or_dropped_when_its_queue_is_full(tmp_path):
+def test_record_counts_every_sample_as_written_or_dropped_when_its_queue_is_full(tmp_path, monkeypatch):
     # a burst far larger than the write queue: the writer drains it every 50 ms, so most of the
     # burst is dropped, and every sample is either in the file or counted as dropped
+    import recorder.service as service
     from recorder.service import record
 
+    # Zenoh hands a session's own subscriber its puts on another thread, after put returns: the
+    # burst stops the recording only once the recorder's callback has seen all of them
+    arrived = []
+    on_sample = service._Recording.on_sample
+
+    def counting(self, sample):
+        on_sample(self, sample)
+        arrived.append(1)
+
+    monkeypatch.setattr(service._Recording, "on_sample", counting)
     stop = threading.Event()
     with open_session(ZenohSettings(mode="peer", connect=[], listen=[])) as s:
         pub = s.declare_publisher("arena/robots/zumo1")
 
         def burst():
-            for i in range(2000):   # a session's own subscriber gets its puts in the put call
+            for i in range(2000):
                 pub.put(Track(track_id=1, robot="zumo1", stamp_us=i, x=0.001 * i).encode())
-            time.sleep(0.3)
+            deadline = time.monotonic() + 20
+            while len(arrived) < 2000 and time.monotonic() < deadline:
+                threading.Event().wait(0.005)   # polling a condition: every sample handed over
             stop.set()
 
         res = record(s, tmp_path / "burst.mcap", ["arena/robots/*"], stop, queue_size=50,

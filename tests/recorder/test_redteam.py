@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import threading
+import time
 import tracemalloc
 
 import numpy as np
@@ -113,7 +114,7 @@ def test_a_slow_view_never_delays_or_drops_an_arena_sample(tmp_path, monkeypatch
         pub = s.declare_publisher("arena/robots/zumo1")
 
         def burst():
-            for i in range(n):   # a session's own subscriber gets its puts in the put call
+            for i in range(n):
                 pub.put(Track(track_id=1, robot="zumo1", stamp_us=i, x=0.001 * i).encode())
             seen["written_while_views_blocked"] = all_written.wait(10)
             views.release.set()
@@ -210,13 +211,27 @@ def _record_with_a_slow_disk(tmp_path, monkeypatch, n: int, payload_bytes: int, 
             super().add(*a, **k)
 
     monkeypatch.setattr(service, "RunWriter", SlowWriter)
+    # Zenoh hands a session's own subscriber its puts on another thread, after put returns: the
+    # burst waits until the recorder's callback has seen all n (queued or dropped) before it stops
+    # the recording, else the last ones arrive after the subscriber is gone and are neither
+    arrived = []
+    on_sample = service._Recording.on_sample
+
+    def counting(self, sample):
+        on_sample(self, sample)
+        arrived.append(1)
+
+    monkeypatch.setattr(service._Recording, "on_sample", counting)
     stop = threading.Event()
     with open_session(ZenohSettings(mode="peer", connect=[], listen=[])) as s:
         pub = s.declare_publisher("arena/telemetry/zumo1")
 
         def burst():
-            for i in range(n):   # a session's own subscriber gets its puts in the put call
+            for i in range(n):
                 pub.put(i.to_bytes(4, "big") + bytes(payload_bytes - 4))
+            deadline = time.monotonic() + 20
+            while len(arrived) < n and time.monotonic() < deadline:
+                threading.Event().wait(0.005)   # polling a condition: every sample handed over
             if hold is not None:
                 hold.set()
             stop.set()
