@@ -19,6 +19,14 @@ left on this machine. The ``cores`` column is the CPU the demo itself used; on a
 busy the same work costs more CPU seconds. The ``ref ms`` column times a fixed pure-Python loop
 just before each run (best of 5): when it and ``cores`` are both up, the machine was slow, not
 the demo. Compare runs only at similar ``ref ms``.
+
+The drill (every run, whatever ``--load``): each robot's mission must have run closed-loop on
+its tracks, or the demo's own summary must say which did not. Per run a ``closed loop`` line
+gives each robot's tracks used and the seconds it drove on odometry alone; a mission that drove
+without tracks, fell back to odometry, or left no manifest, and that the summary (``problems``,
+``odometry_fallbacks``) does not name, fails the drill: the bench then exits 1.
+
+    python bench/bench_demo_realtime.py --load 1.0 --pairs 1   # the drill beside a busy core
 """
 
 from __future__ import annotations
@@ -62,6 +70,31 @@ def _num(v) -> float:
     return float("nan") if v is None else float(v)
 
 
+def closed_loop_drill(manifests: list[dict], summary: dict, robots: int) -> tuple[bool, str]:
+    """Did every one of the ``robots`` missions run closed-loop on its tracks, or does the demo's
+    ``summary`` name the ones that did not? Returns (passed, a one-line account)."""
+    said = set((summary.get("odometry_fallbacks") or {}).keys())
+    problems = " ".join(str(p) for p in summary.get("problems") or [])
+    parts, unsaid = [], []
+    for m in manifests:
+        robot = str(m.get("robot"))
+        fusion = m.get("fusion") or {}
+        used = int(fusion.get("tracks_used") or 0)
+        odo_s = float(fusion.get("odometry_only_s") or 0.0)
+        closed = m.get("control") == "closed"
+        parts.append(f"{robot} {m.get('control', '?')}, {used} tracks, odometry {odo_s:.1f} s"
+                     + (" at the end" if fusion.get("on_odometry_at_end") else ""))
+        if not closed or used == 0:   # not closed-loop at all: the problems must name it
+            if robot not in problems:
+                unsaid.append(f"{robot} ({'open loop' if not closed else 'no tracks'}) not in the problems")
+        elif odo_s > 0 and robot not in said and robot not in problems:
+            unsaid.append(f"{robot} ({odo_s:.1f} s on odometry) not in odometry_fallbacks")
+    if len(manifests) < robots and not problems:
+        unsaid.append(f"{robots - len(manifests)} mission(s) left no manifest and the run is called ok")
+    line = "; ".join(parts) or "no mission manifests"
+    return not unsaid, line + ("" if not unsaid else " -- DRILL FAILED: " + "; ".join(unsaid))
+
+
 def one_run(nice: int, duration: float, out: Path, load: float = 0.0) -> dict:
     limit_s = duration + 180
     ref = reference_ms()
@@ -82,11 +115,14 @@ def one_run(nice: int, duration: float, out: Path, load: float = 0.0) -> dict:
     if proc.returncode not in (0, 1) or not runs:   # 1 with a summary: a run that was not ok (it says why)
         raise SystemExit(f"arena demo failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}")
     summary = json.loads(runs[-1].read_text())
+    from demo.report import read_manifests
+    drill_ok, drill = closed_loop_drill(read_manifests(runs[-1].parent / "telemetry"), summary, robots=4)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {"nice": nice, "ok": summary.get("ok"), "problems": summary.get("problems") or [],
             "rt": summary.get("sim_realtime") or {}, "scores": summary.get("scores") or {},
             "first_track_s": summary.get("first_track_s"), "cores": cpu / wall, "ref_ms": ref,
-            "latency": summary.get("latency") or {}, "windows": summary.get("windows") or {}}
+            "latency": summary.get("latency") or {}, "windows": summary.get("windows") or {},
+            "drill_ok": drill_ok, "drill": drill}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -105,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'run':<26}{'RTF':>6}{'worst lag s':>13}{'at t s':>8}{'first track s':>15}{'MOTA':>7}"
           f"{'MAE cm':>8}{'cores':>7}{'ref ms':>8}{'lat p50 ms':>12}{'p99 ms':>8}{'windows lost':>14}")
     lags: dict[int, list[float]] = {args.nice: [], 0: []}
+    drills: list[bool] = []
     with tempfile.TemporaryDirectory(prefix="bench-demo-") as tmp:
         for i in range(args.pairs):
             for nice in (args.nice, 0):
@@ -121,10 +158,13 @@ def main(argv: list[str] | None = None) -> int:
                       flush=True)
                 if not r["ok"]:
                     print(f"{'':<26}NOT OK: " + "; ".join(r["problems"]), flush=True)
+                print(f"{'':<26}closed loop: {r['drill']}", flush=True)
+                drills.append(r["drill_ok"])
     ours, base = statistics.mean(lags[args.nice]), statistics.mean(lags[0])
     print(f"mean worst lag: ours {ours:.2f} s, baseline {base:.2f} s -> baseline/ours {base / ours:.1f}x"
           if ours > 0 else f"mean worst lag: ours {ours:.2f} s, baseline {base:.2f} s")
-    return 0
+    print(f"drill: {sum(drills)} of {len(drills)} runs had every mission closed-loop or named in the summary")
+    return 0 if all(drills) else 1
 
 
 if __name__ == "__main__":
