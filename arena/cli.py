@@ -343,6 +343,13 @@ def _run_watch(args) -> int:
     if args.notice_after < 0:
         print("arena watch: --notice-after must be >= 0", file=sys.stderr)
         return 2
+    from arena.keys import InvalidKey
+    from arena.session import check_key_expressions
+    try:
+        check_key_expressions([args.keyexpr], "key expression")
+    except InvalidKey as exc:
+        print(f"arena watch: {exc}", file=sys.stderr)
+        return 2
     try:
         with exit_on_session_error("arena watch"):
             settings = resolve_settings(args, load_lab_from_args(args))

@@ -14,6 +14,7 @@ the last period, the gauges, the error count and the last error. The liveliness 
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
 import socket
@@ -164,12 +165,24 @@ def stop_on_signals() -> threading.Event:
     import signal
 
     stop = threading.Event()
+    signalled = []
 
     def handler(signum, frame):  # noqa: ARG001
         if stop.is_set():
             return  # second signal while shutting down: let the cleanup finish
         stop.set()
+        if not signalled:
+            signalled.append(signum)
+            atexit.register(ignore_late_signals)
         raise KeyboardInterrupt(f"signal {signum}")
+
+    def ignore_late_signals() -> None:
+        # The interpreter puts back the default action of every signal with a Python handler as it
+        # finalizes: a second SIGTERM arriving then (a launcher's repeated stop) killed a process
+        # that had finished its work (exit 143). Once a signal began the stop, later ones are
+        # ignored to the end; ignoring survives finalization.
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, signal.SIG_IGN)
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, handler)

@@ -179,6 +179,28 @@ def _cfg_refusal(text: str) -> str:
 DROP_WAIT_US = 50_000
 
 
+#: where a Zenoh error names the Rust source line it came from (" at /root/.cargo/...rs:777.")
+_RUST_WHERE = re.compile(r"\s+at\s+\S+\.rs:\d+\.?\s*$")
+
+
+def check_key_expressions(keys, what: str = "--keys") -> list[str]:
+    """Each of ``keys`` as a Zenoh key expression (checked before anything is opened or written);
+    :class:`~arena.keys.InvalidKey` naming the first that is not one and why, in Zenoh's words
+    without the Rust source path it appends."""
+    from arena.keys import InvalidKey
+
+    out = []
+    for k in keys:
+        try:
+            out.append(str(zenoh.KeyExpr(str(k))))
+        except zenoh.ZError as exc:
+            why = _RUST_WHERE.sub("", str(exc))
+            why = why.split(": ", 1)[1] if why.startswith("Invalid Key Expr") and ": " in why else why
+            raise InvalidKey(f"{what} {str(k)!r} is not a Zenoh key expression: {why} "
+                             "(e.g. arena/robots/* or arena/**)") from None
+    return out
+
+
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the shared Zenoh and lab-config flags to ``parser``."""
     g = parser.add_argument_group("Zenoh and lab config")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 import socket
 import sys
@@ -10,7 +11,7 @@ import time
 
 from arena.clitools import USAGE, formatter, session_or_exit
 from arena.keys import EVERYTHING, InvalidKey, validate_name
-from arena.session import add_zenoh_arguments
+from arena.session import add_zenoh_arguments, check_key_expressions
 
 # Registered at every `arena` command's start: the MCAP library (~20 ms) and the service runtime
 # are imported by the commands that use them. A machine without mcap still lists record/replay as
@@ -112,8 +113,8 @@ def run_record(args) -> int:
         print(f"arena record: {exc}", file=sys.stderr)
         return 2
     apply_service_options(args, lab, "recorder")  # flags win, then [services.recorder], then the defaults
-    if args.duration is not None and args.duration <= 0:
-        print("arena record: --duration must be > 0 seconds", file=sys.stderr)
+    if args.duration is not None and not 0 < args.duration < math.inf:
+        print("arena record: --duration must be a number of seconds > 0", file=sys.stderr)
         return 2
     if args.queue < 1:
         print("arena record: --queue must be at least 1", file=sys.stderr)
@@ -121,16 +122,25 @@ def run_record(args) -> int:
     if not 1 <= args.queue_mb <= 65536:
         print("arena record: --queue-mb must be 1 to 65536 (MB)", file=sys.stderr)
         return 2
+    try:   # before the file is opened (it is overwritten) and before waiting for a router
+        keys = check_key_expressions(args.keys or [EVERYTHING])
+    except InvalidKey as exc:
+        print(f"arena record: {exc}", file=sys.stderr)
+        return 2
     out = os.path.abspath(args.out)
     if not os.path.isdir(os.path.dirname(out)):
         print(f"arena record: folder {os.path.dirname(out)} does not exist", file=sys.stderr)
+        return 2
+    if os.path.isdir(out) or not os.access(os.path.dirname(out), os.W_OK) or (
+            os.path.exists(out) and not os.access(out, os.W_OK)):
+        print(f"arena record: cannot write {out}: "
+              f"{'a folder' if os.path.isdir(out) else 'permission denied'}", file=sys.stderr)
         return 2
     foxglove = None
     if not args.no_foxglove:
         foxglove = _foxglove_converter(args, lab, "record")
         if foxglove is None:
             return 2
-    keys = args.keys or [EVERYTHING]
     stop = stop_on_signals()
     meta = {"host": socket.gethostname(), "keys": ",".join(keys), "started_ns": str(time.time_ns()),
             "command": " ".join(sys.argv)}
@@ -170,7 +180,8 @@ def run_replay(args) -> int:
         return 2
     try:
         path = find_run_file(args.run)
-    except RunFileError as exc:
+        keys = check_key_expressions(args.keys) if args.keys else None
+    except (RunFileError, InvalidKey) as exc:
         print(f"arena replay: {exc}", file=sys.stderr)
         return 2
     stop = stop_on_signals()
@@ -182,7 +193,7 @@ def run_replay(args) -> int:
                 return 0
             pace = "as fast as possible" if args.speed == 0 else f"at {args.speed:g}x"
             print(f"replaying {path} {pace}{' in a loop' if args.loop else ''}", flush=True)
-            res = replay(session, path, stop, speed=args.speed, keys=args.keys, loop=args.loop,
+            res = replay(session, path, stop, speed=args.speed, keys=keys, loop=args.loop,
                          on_message=lambda m: svc.count("messages"))
     except KeyboardInterrupt:
         return 0

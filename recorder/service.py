@@ -239,6 +239,7 @@ def record(session: zenoh.Session, path: str | Path, keys: Iterable[str], stop: 
     ``dropped``, views left in ``views_dropped``; a view being made is abandoned), then the file is
     finished, with these counts in its ``arena.summary`` metadata."""
     t0 = time.monotonic()
+    keys = [str(zenoh.KeyExpr(k)) for k in keys]   # a bad one raises here, before the file is truncated
     with Service(session, "recorder", name) as svc, RunWriter(path, metadata=metadata) as writer:
         rec = _Recording(svc, writer, foxglove, queue_size, queue_bytes, view_queue, view_queue_bytes,
                          stop_within_s)
