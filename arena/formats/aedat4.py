@@ -41,7 +41,13 @@ _AEDAT_EVENT = np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("on", "u1"),
 #: a packet decompresses to at most this many times its size (LZ4 reaches 255, real event packets
 #: under 20) and 1 MiB more, so a small hostile packet cannot claim gigabytes
 _MAX_RATIO = 1024
-_MAX_PACKET = 1 << 30
+#: most bytes one event packet may hold decompressed: 4 Mi events. DV writes one packet per batch
+#: the camera delivers, 10 ms of events by libcaer's default; even at a DVXplorer's peak 165 Mev/s
+#: that is 1.65 M events (26 MB), and our writer's packets are 65 536 events (never over this). A
+#: packet claiming more is damage or a bomb: it is skipped before it is held in memory
+_MAX_PACKET = 64 << 20
+#: most events of one packet (the elements after the 32 bytes of FlatBuffer around them)
+_MAX_PACKET_EVENTS = (_MAX_PACKET - 32) // 16
 
 
 def _at(buf: bytes, fmt: str, pos: int):
@@ -81,36 +87,53 @@ def _parse_info(xml_text: str) -> dict[int, dict]:
     return streams
 
 
-def _decompress(body: bytes, compression: int) -> bytes:
-    """The packet ``body`` decompressed, at most ``_MAX_RATIO`` times its size (plus 1 MiB):
-    what a frame header declares is not allocated beyond that."""
+def _decompress(body: bytes, compression: int) -> bytes | bytearray:
+    """The packet ``body`` decompressed, at most ``_MAX_RATIO`` times its size (plus 1 MiB) and
+    at most :data:`_MAX_PACKET` bytes: what a frame header declares is not allocated beyond that,
+    and the data is held once (not in pieces and joined)."""
     if compression == 0:
         return body
     cap = min(_MAX_PACKET, _MAX_RATIO * len(body) + (1 << 20))
     if compression in (1, 2):
-        d = lz4.frame.LZ4FrameDecompressor()
-        out = d.decompress(body, max_length=cap + 1)
-        if len(out) > cap:
-            raise FormatError(f"AEDAT4 packet of {len(body)} bytes expands beyond {cap} bytes")
-        if not d.eof:
-            raise FormatError("AEDAT4 LZ4 packet is truncated")
+        # in pieces into one buffer: decompress(body, max_length=cap) holds its output twice (a
+        # buffer of cap bytes, then copied into the bytes returned)
+        d, out, data = lz4.frame.LZ4FrameDecompressor(), bytearray(), body
+        while not d.eof:
+            piece = d.decompress(data, max_length=1 << 20)
+            data = b""
+            if len(out) + len(piece) > cap:
+                raise FormatError(f"AEDAT4 packet of {len(body)} bytes expands beyond {cap} bytes")
+            out += piece
+            if not piece and not d.eof:    # input used up, the frame unfinished
+                raise FormatError("AEDAT4 LZ4 packet is truncated")
         return out
     if compression in (3, 4):
         declared = zstandard.frame_content_size(body)   # zstd allocates it whatever the caller's cap
         if declared > cap:
             raise FormatError(f"AEDAT4 packet of {len(body)} bytes declares {declared} bytes decompressed")
-        parts, total = [], 0
+        # a known size: into a buffer of that size, then one byte more must not come; unknown
+        # (-1, a streamed frame): grown a piece at a time (read(cap) would allocate cap bytes)
+        out = bytearray(declared if declared >= 0 else 0)
         with zstandard.ZstdDecompressor(max_window_size=1 << 27).stream_reader(body) as r:
-            while piece := r.read(1 << 20):   # in pieces: read(cap) would allocate cap bytes
-                total += len(piece)
-                if total > cap:
-                    raise FormatError(f"AEDAT4 packet of {len(body)} bytes expands beyond {cap} bytes")
-                parts.append(piece)
-        return b"".join(parts)
+            if declared >= 0:
+                got = 0
+                with memoryview(out) as view:
+                    while got < declared and (k := r.readinto(view[got:])):
+                        got += k
+                if got < declared:
+                    raise FormatError(f"AEDAT4 packet is truncated ({got} of the {declared} bytes it declares)")
+                if r.read(1):
+                    raise FormatError(f"AEDAT4 packet expands beyond the {declared} bytes it declares")
+            else:
+                while piece := r.read(1 << 20):
+                    if len(out) + len(piece) > cap:
+                        raise FormatError(f"AEDAT4 packet of {len(body)} bytes expands beyond {cap} bytes")
+                    out += piece
+        return out
     raise FormatError(f"unknown AEDAT4 compression {compression}")
 
 
-def _packet_events(buf: bytes) -> np.ndarray:
+def _packet_events(buf: bytes | bytearray) -> np.ndarray:
     """Events of one decompressed, size-prefixed ``EventPacket`` FlatBuffer (their x, y still
     the file's int16: see :meth:`Aedat4Reader.chunks`)."""
     if len(buf) < 12 or buf[8:12] != b"EVTS":
@@ -139,17 +162,21 @@ def _packet_events(buf: bytes) -> np.ndarray:
 
 
 class Aedat4Reader(EventReader):
-    """Streaming reader of the first polarity-event stream of an AEDAT 4.0 file (one chunk per packet).
+    """Streaming reader of the first polarity-event stream of an AEDAT 4.0 file (chunks of at most
+    ``chunk_events`` events, none spanning two packets).
 
     A packet of that stream that does not decompress or parse is skipped and counted in
     ``skipped`` (also ``skipped_packets``), with a :class:`~arena.formats.base.SkippedData` warning;
     so is a packet of a stream id the header does not describe (a damaged id would otherwise drop
     events without a word). Packets of other described streams (frames, IMU) are skipped silently.
+    A packet over :data:`_MAX_PACKET` bytes (stored or decompressed) counts as corrupt. Events whose
+    ``on`` byte is neither 0 nor 1 (dv-processing writes a bool) count in ``invalid``.
     """
 
     def __init__(self, path: str | Path, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> None:
         super().__init__()
         self.path = str(path)
+        self._chunk = max(1, int(chunk_events))
         self._f = open(path, "rb")
         try:
             self._size = file_size(self._f)
@@ -228,6 +255,12 @@ class Aedat4Reader(EventReader):
                                f"AEDAT4 packet at byte {pos} of stream {sid}, which the header does not "
                                f"describe, skipped (the events are stream {self.stream_id})")
                 continue
+            if size > _MAX_PACKET:     # not read: it would be held whole
+                self._f.seek(size, 1)
+                self.skipped_packets += 1
+                self._skip(1, "corrupt packets", f"AEDAT4 event packet at byte {pos} skipped ({size} bytes, "
+                           f"over the {_MAX_PACKET} bytes of a real packet)")
+                continue
             body = read_exactly(self._f, size, end, "AEDAT4 packet", self.path)
             try:
                 raw = _packet_events(_decompress(body, self.compression))
@@ -235,8 +268,10 @@ class Aedat4Reader(EventReader):
                 self.skipped_packets += 1
                 self._skip(1, "corrupt packets", f"AEDAT4 event packet at byte {pos} skipped ({exc})")
                 continue
-            if raw.size:
-                yield self._valid(self._columns(raw["x"], raw["y"], raw["on"] != 0, raw["t"]))
+            for i in range(0, raw.size, self._chunk):
+                part = raw[i:i + self._chunk]
+                # the on byte as stored: _columns drops (and counts) any but 0 and 1
+                yield self._valid(self._columns(part["x"], part["y"], part["on"], part["t"]))
 
     def close(self) -> None:
         self._f.close()
@@ -291,7 +326,7 @@ class Aedat4Writer(EventWriter):
         if key not in COMPRESSIONS:
             raise FormatError(f"unknown AEDAT4 compression {compression!r}; choose from {sorted(COMPRESSIONS)}")
         self._comp = COMPRESSIONS[key]
-        self._packet = packet_events
+        self._packet = max(1, min(int(packet_events), _MAX_PACKET_EVENTS))   # what the reader accepts
         info = ('<dv version="2.0"><node name="outInfo" path="/mainloop/Recorder/outInfo/">'
                 '<node name="0" path="/mainloop/Recorder/outInfo/0/">'
                 f'<attr key="compression" type="string">{key.upper()}</attr>'

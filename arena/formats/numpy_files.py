@@ -36,7 +36,7 @@ def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype, bool, 
     """Shape, dtype, Fortran-order flag of the ``.npy`` stream at ``fp`` (left at the array's
     data) and the bytes after the array's data, refusing (:class:`FormatError`) an array larger
     than the ``available`` bytes that hold it, before anything is allocated, and arrays that
-    cannot be events."""
+    cannot be events (or any array: a negative dimension)."""
     fmt = np.lib.format
     version = fmt.read_magic(fp)
     if version == (1, 0):
@@ -45,6 +45,9 @@ def _npy_header(fp, available: int, where: str) -> tuple[tuple, np.dtype, bool, 
         shape, fortran, dtype = fmt.read_array_header_2_0(fp)
     else:  # 3.0: only for field names beyond latin-1, never an event array's x, y, p, t
         raise FormatError(f"{where}: .npy format version {version[0]}.{version[1]} is not supported (1.0, 2.0)")
+    if any(int(d) < 0 for d in shape):  # numpy's header parser lets them through; np.load refuses them
+        raise FormatError(f"{where}: .npy header declares shape {shape}, with a negative dimension: a "
+                          "damaged header")
     count = 1
     for d in shape:
         count *= int(d)
@@ -206,7 +209,10 @@ class NumpyReader(EventReader):
         """Chunks of range-checked events (not yet checked against the sensor)."""
         if len(self._members) == 1:
             for arr in self._members[0].blocks(self._chunk):
-                yield self._columns(arr["x"], arr["y"], arr["p"], arr["t"])
+                p = arr["p"]
+                if p.dtype.kind == "b":     # numpy reads any nonzero byte as True: a 7 is damage
+                    p = p.view(np.uint8)
+                yield self._columns(arr["x"], arr["y"], p, arr["t"])
         else:
             for x, y, p, t in zip(*(m.blocks(self._chunk) for m in self._members)):
                 yield self._columns(x, y, p, t)
