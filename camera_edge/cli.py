@@ -61,6 +61,8 @@ EDGE_RANGES = {
     "denoise": number(1, 1_000_000, "µs", integer=True),
     "queue": number(1, 10_000, "windows", integer=True),
 }
+#: USB entries passed over that ``arena edge --list-devices`` names, at most (then how many more)
+MAX_DEVICE_NOTES = 20
 #: Longest --duration of ``arena edge``, s (a week; leave it out to run until stopped).
 EDGE_DURATION_MAX_S = 7 * 86_400.0
 
@@ -79,21 +81,36 @@ def _no_events(path: str) -> str | None:
         return None
     from arena.formats import SkippedData
 
+    skipped: dict[str, int] = {}   # what it skipped is why it has none: counted by unit, not kept
+    show = warnings.showwarning
+
+    def tally(message, category, *args, **kw) -> None:
+        if isinstance(message, SkippedData):
+            skipped[message.unit] = skipped.get(message.unit, 0) + message.count
+        else:
+            show(message, category, *args, **kw)
+
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", SkippedData)   # what it skipped is why it has none
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", SkippedData)
+            warnings.showwarning = tally
             with iter_events(path) as reader:
                 if any(chunk.size for chunk in reader):
                     return None
                 invalid = reader.invalid
     except (FormatError, OSError, ValueError):
         return None
-    skips = [w.message for w in caught if isinstance(w.message, SkippedData)]
-    if skips:
-        why = ", ".join(f"{m.count} {m.unit} skipped" for m in skips[:3])
+    if skipped:
+        why = skip_summary(skipped).removeprefix(", ")
     else:
         why = f"{invalid} invalid events only" if invalid else "a header without events"
     return f"no events in {path} ({why})"
+
+
+def skip_summary(skipped: dict[str, int]) -> str:
+    """``", N UNIT skipped"`` for each unit of ``skipped`` (by name), for a summary line; a unit
+    saying what happened to them instead (``"... (kept)"``) is not a skip, and has no "skipped"."""
+    return "".join(f", {n} {unit}" + ("" if unit.endswith(")") else " skipped") for unit, n in sorted(skipped.items()))
 
 
 def register_convert(sub) -> None:
@@ -159,8 +176,7 @@ def run_convert(args) -> int:
             return 2
     skipped.pop("invalid events", None)
     extra = f", {res['invalid']} invalid events skipped" if res["invalid"] else ""
-    # a unit saying what happened to them ("... (kept)") is not a skip
-    extra += "".join(f", {n} {unit}" + ("" if unit.endswith(")") else " skipped") for unit, n in sorted(skipped.items()))
+    extra += skip_summary(skipped)
     print(f"{args.output}: {res['events']} events, {res['width']} x {res['height']} px{extra}")
     return 0
 
@@ -293,13 +309,18 @@ def run_edge_cli(args) -> int:
     from camera_edge.sources import SourceError, open_source
 
     if args.list_devices:
+        notes: list[str] = []
         try:
-            devices = list_devices()
+            devices = list_devices(notes=notes)
         except RuntimeError as exc:
             print(f"arena edge: {exc}", file=sys.stderr)
             return 2
         for d in devices:
             print(d.describe())
+        for line in notes[:MAX_DEVICE_NOTES]:   # a camera may hide behind an entry that cannot be read
+            print(f"arena edge: {line}", file=sys.stderr)
+        if len(notes) > MAX_DEVICE_NOTES:
+            print(f"arena edge: and {len(notes) - MAX_DEVICE_NOTES} more USB entries skipped", file=sys.stderr)
         if not devices:
             print("no event camera found on USB (Prophesee 31f7/04b4, iniVation 152a)")
         return 0
@@ -358,7 +379,9 @@ def run_edge_cli(args) -> int:
             res = run_edge(session, source, pipeline, name, args.codec, queue_size=args.queue,
                            duration_s=args.duration, stop=stop, hot_save=args.hot_save)
     log.info("edge %s done: %s", name, res)
+    # what the source skipped, as `arena convert` says it (its status: source_invalid, source_skipped)
+    skips = (f", {res['invalid']} invalid events skipped" if res["invalid"] else "") + skip_summary(res["skipped"])
     print(f"arena edge {name}: {res['events_in']} events in, {res['events_kept']} kept, "
           f"{res['windows']} windows, {res['windows_dropped']} dropped in {res['wall_s']:.2f} s "
-          f"(CPU {res['cpu_s']:.2f} s)", file=sys.stderr)
+          f"(CPU {res['cpu_s']:.2f} s){skips}", file=sys.stderr)
     return 0

@@ -180,6 +180,7 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
             s.gauge("queue_depth", pub.depth())
             s.gauge("subscribed", int(pub.matching))
             s.gauge("source_invalid", source.invalid)
+            s.gauge("source_skipped", source_skipped(source))
             _gauge_filters(s, pipeline, camera, hot_reported, hot_save)
             for attr in ("reconnects", "connected"):
                 if hasattr(source, attr):
@@ -209,9 +210,16 @@ def run_edge(session: zenoh.Session, source: EventSource, pipeline: EdgePipeline
             result = {"events_in": pipeline.n_in, "events_kept": pipeline.n_out, "windows": pub.seq,
                       "windows_dropped": pub.dropped,
                       "windows_unsubscribed": int(svc.counter("windows_unsubscribed")),
+                      "invalid": source.invalid, "skipped": dict(getattr(source, "skipped", {})),
                       "cpu_s": time.process_time() - cpu0,
                       "wall_s": time.monotonic() - wall0}
     return result
+
+
+def source_skipped(source: EventSource) -> int:
+    """How many parts of its input ``source`` skipped, all units together (not those a unit
+    ending in ")" says were kept, nor invalid events: ``source.invalid``)."""
+    return sum(n for unit, n in getattr(source, "skipped", {}).items() if not unit.endswith(")"))
 
 
 def _gauge_filters(s: Service, pipeline: EdgePipeline, camera: str, hot_reported: set[int],
