@@ -171,8 +171,12 @@ def run_convert(args) -> int:
         except SkippedData as exc:
             print(f"arena convert: {exc} (--strict: stopped, no output written)", file=sys.stderr)
             return 2
-        except (FormatError, OSError) as exc:
+        except FormatError as exc:
             print(f"arena convert: {exc}", file=sys.stderr)
+            return 2
+        except OSError as exc:   # a write that failed part way (EFBIG, ENOSPC) names no file: say which
+            what = exc if exc.filename else f"converting {args.input} to {args.output}: {exc.strerror or exc}"
+            print(f"arena convert: {what}", file=sys.stderr)
             return 2
     skipped.pop("invalid events", None)
     extra = f", {res['invalid']} invalid events skipped" if res["invalid"] else ""

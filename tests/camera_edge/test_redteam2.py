@@ -241,3 +241,24 @@ def test_edge_summary_line_says_what_was_skipped_like_convert(tmp_path, capsys):
     assert code == 0, err
     assert err.count("\n") <= 3, err   # the first skip logged, the summary: not 6000 lines
     assert "arena edge camsum: 10 events in, 10 kept" in err and f", 3000 {UNDESCRIBED} skipped\n" in err, err
+
+
+def test_a_write_that_fails_part_way_names_the_files_it_was_converting(tmp_path):
+    # a file-size limit (EFBIG): the OSError of a write names no file; the one line says which
+    import resource
+    import subprocess
+    import sys
+
+    from arena.formats import write_events
+    n = 20_000
+    src, dst = tmp_path / "in.npy", tmp_path / "out.raw"
+    write_events(src, make_events(np.arange(n) % 320, np.arange(n) % 240, np.arange(n) % 2, np.arange(n) * 10),
+                 320, 240)
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))   # Python ignores SIGXFSZ: EFBIG
+
+    res = subprocess.run([sys.executable, "-m", "arena", "convert", str(src), str(dst)], capture_output=True,
+                         text=True, timeout=120, preexec_fn=small_files)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip() == f"arena convert: converting {src} to {dst}: File too large", res.stderr
