@@ -110,8 +110,14 @@ def _scalar_size(zf: zipfile.ZipFile, name: str, where: str) -> int | None:
     m = _member(zf, name, where)
     if m.size != 1 or m.dtype.kind not in "iu":
         raise FormatError(f"{where}: {name} must be one integer, got {m.dtype} of shape {m.shape}")
+    if m.trailing:
+        raise FormatError(f"{where}: {name} has {m.trailing} bytes after its one value: a damaged member")
     return int(m.whole().reshape(-1)[0])
 
+
+#: what ``arena sim``'s full recordings hold beside their events (simulator.recording.save_recording):
+#: known, so not reported as members it does not read
+_SIMULATOR_EXTRAS = ("is_signal", "truth", "robot_names", "calibration", "homography")
 
 #: Most bytes an npz may decompress to in all, per byte of the file (plus :data:`_ARCHIVE_SLACK`):
 #: real event columns deflate 2-10 to one (a constant polarity column 1000 to one, but it is 1 of
@@ -176,8 +182,19 @@ class NumpyReader(EventReader):
         if total > _MAX_ARCHIVE_RATIO * path.stat().st_size + _ARCHIVE_SLACK:
             raise FormatError(f"{path}: npz declares {total} bytes in all from a {path.stat().st_size}-byte file "
                               f"(over {_MAX_ARCHIVE_RATIO} to one): a decompression bomb or corrupt")
-        names = [n[:-4] for n in zf.namelist() if n.endswith(".npy")]
-        if "events" in names and "x" not in names:  # a structured array (simulator)
+        listed = zf.namelist()
+        twice = sorted({n for n in listed if listed.count(n) > 1}) if len(set(listed)) != len(listed) else []
+        if twice:   # zipfile reads the last of them: which one the writer meant is unknown
+            raise FormatError(f"{path}: npz holds more than one member named {', '.join(twice)}: corrupt")
+        names = [n[:-4] for n in listed if n.endswith(".npy")]
+        structured = "events" in names and "x" not in names
+        used = ({"events", "width", "height", *_SIMULATOR_EXTRAS} if structured
+                else {"x", "y", "p", "t", "width", "height"})
+        other = [n for n in listed if not (n.endswith(".npy") and n[:-4] in used)]
+        if other:   # a damaged member name (width.npy -> wiath.npy) would otherwise go unseen
+            self._skip(len(other), "archive members", f"npz members {other[:5]}{' ...' if len(other) > 5 else ''} "
+                       "are not event arrays (x, y, p, t, width, height, or events): not read")
+        if structured:  # a structured array (simulator)
             self._members = [_member(zf, "events", self.path)]
             self._check_structured(self._members[0])
         else:

@@ -217,3 +217,57 @@ def test_a_npy_bool_polarity_byte_other_than_0_or_1_is_an_invalid_event(tmp_path
     assert got["x"].tolist() == [1, 2, 5] and got["p"].tolist() == [0, 1, 1]
     assert (reader.invalid, reader.skipped) == (2, 0)
     assert [w.message.count for w in caught] == [2]
+
+
+def _npz_columns(path, n=50, **extra):
+    ev = make_events(np.arange(n) % 320, np.arange(n) % 240, np.arange(n) % 2, np.arange(n) * 10)
+    np.savez(path, x=ev["x"], y=ev["y"], p=ev["p"], t=ev["t"], width=320, height=240, **extra)
+    return ev
+
+
+def test_an_npz_member_of_no_known_name_is_reported_not_silently_ignored(tmp_path):
+    # a damaged member name (width.npy -> wiath.npy) had made the sensor size fall back to the
+    # events' extent without a word
+    import zipfile
+    src = tmp_path / "a.npz"
+    _npz_columns(src)
+    data = src.read_bytes().replace(b"width.npy", b"wiath.npy")
+    (tmp_path / "b.npz").write_bytes(data)
+    with pytest.warns(SkippedData, match=r"npz members \['wiath.npy'\] are not event arrays"):
+        with iter_events(tmp_path / "b.npz") as r:
+            n = sum(c.size for c in r)
+            assert r.skipped == 1 and (r.width, r.height) == (50, 240)   # the extent, now said
+    assert n == 50
+    with zipfile.ZipFile(src) as zf:
+        assert sorted(zf.namelist()) == ["height.npy", "p.npy", "t.npy", "width.npy", "x.npy", "y.npy"]
+
+
+def test_a_simulator_recording_npz_reads_without_a_word(tmp_path):
+    from simulator.recording import save_recording
+    from simulator.scenarios import Scenario, generate
+    rec = generate(Scenario(1, "circle", 0.5, 0.2, seed=1))
+    save_recording(rec, tmp_path / "sim.npz")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with iter_events(tmp_path / "sim.npz") as r:
+            assert sum(c.size for c in r) == rec.events.size and r.skipped == 0
+
+
+def test_an_npz_with_two_members_of_one_name_or_a_damaged_scalar_is_refused(tmp_path):
+    import zipfile
+    src = tmp_path / "a.npz"
+    _npz_columns(src)
+    dup = tmp_path / "dup.npz"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dup, "w") as zout, warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # zipfile warns of the duplicate name it is asked to write
+        for info in zin.infolist():
+            zout.writestr(info, zin.read(info))
+        zout.writestr("x.npy", zin.read("x.npy"))
+    with pytest.raises(FormatError, match="more than one member named x.npy"):
+        iter_events(dup)
+    bad = tmp_path / "w.npz"
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(bad, "w") as zout:
+        for info in zin.infolist():
+            zout.writestr(info, zin.read(info) + (b"\0" * 8 if info.filename == "width.npy" else b""))
+    with pytest.raises(FormatError, match="width has 8 bytes after its one value"):
+        iter_events(bad)
