@@ -302,32 +302,38 @@ def _build_filters(args, width: int, height: int, lab_camera) -> list:
     return filters
 
 
+def _list_devices() -> int:
+    """`arena edge --list-devices`: the event cameras on USB, and the entries that could not be read."""
+    from camera_edge.devices import list_devices
+
+    notes: list[str] = []
+    try:
+        devices = list_devices(notes=notes)
+    except RuntimeError as exc:
+        print(f"arena edge: {exc}", file=sys.stderr)
+        return 2
+    for d in devices:
+        print(d.describe())
+    for line in notes[:MAX_DEVICE_NOTES]:   # a camera may hide behind an entry that cannot be read
+        print(f"arena edge: {line}", file=sys.stderr)
+    if len(notes) > MAX_DEVICE_NOTES:
+        print(f"arena edge: and {len(notes) - MAX_DEVICE_NOTES} more USB entries skipped", file=sys.stderr)
+    if not devices:
+        print("no event camera found on USB (Prophesee 31f7/04b4, iniVation 152a)")
+    return 0
+
+
 def run_edge_cli(args) -> int:
     from arena.config import ConfigError, apply_service_options
     from arena.keys import InvalidKey, validate_name
     from arena.service import stop_on_signals
     from arena.session import load_lab_from_args, open_session
-    from camera_edge.devices import list_devices
     from camera_edge.pipeline import EdgePipeline, warm_up
     from camera_edge.service import run_edge
     from camera_edge.sources import SourceError, open_source
 
     if args.list_devices:
-        notes: list[str] = []
-        try:
-            devices = list_devices(notes=notes)
-        except RuntimeError as exc:
-            print(f"arena edge: {exc}", file=sys.stderr)
-            return 2
-        for d in devices:
-            print(d.describe())
-        for line in notes[:MAX_DEVICE_NOTES]:   # a camera may hide behind an entry that cannot be read
-            print(f"arena edge: {line}", file=sys.stderr)
-        if len(notes) > MAX_DEVICE_NOTES:
-            print(f"arena edge: and {len(notes) - MAX_DEVICE_NOTES} more USB entries skipped", file=sys.stderr)
-        if not devices:
-            print("no event camera found on USB (Prophesee 31f7/04b4, iniVation 152a)")
-        return 0
+        return _list_devices()
     try:
         lab = load_lab_from_args(args)
     except ConfigError as exc:
