@@ -81,8 +81,10 @@ def closed_loop_drill(manifests: list[dict], summary: dict, robots: int) -> tupl
         fusion = m.get("fusion") or {}
         used = int(fusion.get("tracks_used") or 0)
         odo_s = float(fusion.get("odometry_only_s") or 0.0)
+        first_s = float(fusion.get("odometry_before_first_track_s") or 0.0)
         closed = m.get("control") == "closed"
         parts.append(f"{robot} {m.get('control', '?')}, {used} tracks, odometry {odo_s:.1f} s"
+                     + (f" ({first_s:.1f} s before the first track)" if first_s > 0 else "")
                      + (" at the end" if fusion.get("on_odometry_at_end") else ""))
         if not closed or used == 0:   # not closed-loop at all: the problems must name it
             if robot not in problems:

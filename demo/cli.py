@@ -533,13 +533,17 @@ def _start_missions(session, robots: list[str], args) -> None:
 def _odometry_fallbacks(manifests: list[dict]) -> dict | None:
     """Per closed-loop robot, how often its loop lost its track while driving and fell back to
     odometry alone, for how long in all, and whether it was so at the end (the manifests'
-    ``fusion``): ``{robot: {"fallbacks", "seconds", "at_end"}}``; None when no manifest says."""
+    ``fusion``): ``{robot: {"fallbacks", "seconds", "before_first_track_s", "at_end"}}``: seconds
+    from the last track (or from when it started to drive) until a track came back, the part of
+    them before the mission's first track apart; None when no manifest says."""
     out = {}
     for m in manifests:
         fusion = m.get("fusion") or {}
         if m.get("control") == "closed" and "odometry_fallbacks" in fusion:
             out[str(m.get("robot"))] = {"fallbacks": int(fusion["odometry_fallbacks"]),
                                         "seconds": float(fusion.get("odometry_only_s") or 0.0),
+                                        "before_first_track_s": float(fusion.get("odometry_before_first_track_s")
+                                                                      or 0.0),
                                         "at_end": bool(fusion.get("on_odometry_at_end"))}
     return out or None
 
@@ -860,8 +864,14 @@ def _print_run_health(summary: dict, first_track_s, health: dict) -> None:
                  f"last status" if _unseen(wins) > 0 else ""))
     if fallbacks is not None:
         print("closed loops on odometry alone (no track for > 0.5 s while driving): "
-              + (", ".join(f"{r} {v['fallbacks']}x, {v['seconds']:.1f} s" + (" (still at the end)" if v["at_end"] else "")
-                           for r, v in fallbacks.items() if v["fallbacks"]) or "none"))
+              + (", ".join(_fallback_words(r, v) for r, v in fallbacks.items() if v["fallbacks"]) or "none"))
+
+
+def _fallback_words(robot: str, v: dict) -> str:
+    """``black0 1x, 0.6 s (0.6 s before its first track)``: one robot's fallbacks to odometry."""
+    first = float(v.get("before_first_track_s") or 0.0)
+    notes = ([f"{first:.1f} s before its first track"] if first > 0 else []) + (["still at the end"] if v["at_end"] else [])
+    return f"{robot} {v['fallbacks']}x, {v['seconds']:.1f} s" + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def _print_run_pointers(run_dir: Path, args, summary: dict) -> None:

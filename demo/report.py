@@ -68,7 +68,9 @@ def _fallbacks(fusion: dict) -> str:
     the mission did not say (the paper's open-loop control, an older manifest)."""
     if "odometry_fallbacks" not in fusion:
         return "-"
-    return f"{fusion['odometry_fallbacks']} ({float(fusion.get('odometry_only_s') or 0):.1f} s)"
+    first = float(fusion.get("odometry_before_first_track_s") or 0)
+    return (f"{fusion['odometry_fallbacks']} ({float(fusion.get('odometry_only_s') or 0):.1f} s"
+            + (f", {first:.1f} s before the first track)" if first > 0 else ")"))
 
 
 MISSION_HEADERS = ["robot", "mission", "status", "rows", "missing frames", "tracks fused", "on odometry alone",

@@ -272,9 +272,12 @@ class TrackWatch:
     track pose fused (``PoseEstimator.last_track_t``, None if none yet) and whether the robot is
     commanded to move. While it stands, no track is expected (a standing robot gives an event
     camera no events), so the clock starts when it moves: moving for more than ``lost_s`` with no
-    track since is a *fallback* to odometry (counted in ``fallbacks``, timed in ``odometry_s``);
-    a track coming back ends it. :meth:`update` returns ``"lost"`` or ``"regained"`` when the
-    state changes, else None.
+    track since is a *fallback* to odometry (counted in ``fallbacks``); a track coming back ends
+    it. ``odometry_s`` times the driving without a track from its beginning (the last track, or
+    the moment it started to move), not from when ``lost_s`` ran out: that is how long the loop
+    really drove on odometry alone. The part of it before the mission's first track (a track is
+    named only once the robot moves) is ``before_first_track_s``. :meth:`update` returns
+    ``"lost"`` or ``"regained"`` when the state changes, else None.
     """
 
     def __init__(self, lost_s: float = 0.5):
@@ -282,7 +285,9 @@ class TrackWatch:
         self.on_odometry = False
         self.fallbacks = 0
         self.odometry_s = 0.0
-        self._since: float | None = None      # when the current fallback began
+        self.before_first_track_s = 0.0
+        self.had_track = False                # a fresh track came during this mission
+        self._since: float | None = None      # when the driving without a track began
         self._still_t: float | None = None    # last time the robot was commanded to stand
 
     def update(self, now: float, last_track_t: float | None, moving: bool) -> str | None:
@@ -294,23 +299,29 @@ class TrackWatch:
             self._still_t = ref = now
         lost = moving and now - ref > self.lost_s
         if lost and not self.on_odometry:
-            self.on_odometry, self._since = True, now
+            self.on_odometry, self._since = True, min(ref, now)
             self.fallbacks += 1
             return "lost"
         fresh = last_track_t is not None and now - last_track_t <= self.lost_s
         if self.on_odometry and fresh:
             self.on_odometry = False
             self.odometry_s += now - self._since
+            if not self.had_track:
+                self.before_first_track_s += now - self._since
             self._since = None
+            self.had_track = True
             return "regained"
+        self.had_track = self.had_track or fresh
         return None
 
     def odometry_time(self, now: float) -> float:
-        """Seconds spent on odometry alone so far (the running fallback included)."""
+        """Seconds driven on odometry alone so far (the running fallback included)."""
         return self.odometry_s + (now - self._since if self._since is not None else 0.0)
 
     def as_dict(self, now: float) -> dict:
+        running = now - self._since if self._since is not None and not self.had_track else 0.0
         return {"odometry_fallbacks": self.fallbacks, "odometry_only_s": round(self.odometry_time(now), 3),
+                "odometry_before_first_track_s": round(self.before_first_track_s + running, 3),
                 "on_odometry_at_end": self.on_odometry}
 
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from demo.report import mission_rows, realtime_rows, webcam_as_tracks
+from demo.report import _fallbacks, mission_rows, realtime_rows, webcam_as_tracks
 from arena.formats.tables import TRUTH_DTYPE
 from groundtruth.metrics import evaluate
 
@@ -35,12 +35,22 @@ def test_mission_rows_show_path_errors_in_cm_and_a_dash_for_what_a_manifest_lack
 def test_the_demo_summary_says_which_closed_loops_fell_back_to_odometry():
     from demo.cli import _odometry_fallbacks
 
+    from demo.cli import _fallback_words
+
     manifests = [{"robot": "a", "control": "closed", "fusion": {"odometry_fallbacks": 1, "odometry_only_s": 0.8,
                                                                 "on_odometry_at_end": True}},
                  {"robot": "b", "control": "closed", "fusion": {"odometry_fallbacks": 0, "odometry_only_s": 0.0}},
+                 {"robot": "d", "control": "closed", "fusion": {"odometry_fallbacks": 2, "odometry_only_s": 1.7,
+                                                                "odometry_before_first_track_s": 0.6}},
                  {"robot": "c", "control": "paper", "fusion": {}}]
-    assert _odometry_fallbacks(manifests) == {"a": {"fallbacks": 1, "seconds": 0.8, "at_end": True},
-                                              "b": {"fallbacks": 0, "seconds": 0.0, "at_end": False}}
+    got = _odometry_fallbacks(manifests)
+    assert got == {"a": {"fallbacks": 1, "seconds": 0.8, "before_first_track_s": 0.0, "at_end": True},
+                   "b": {"fallbacks": 0, "seconds": 0.0, "before_first_track_s": 0.0, "at_end": False},
+                   "d": {"fallbacks": 2, "seconds": 1.7, "before_first_track_s": 0.6, "at_end": False}}
+    assert _fallback_words("a", got["a"]) == "a 1x, 0.8 s (still at the end)"
+    assert _fallback_words("d", got["d"]) == "d 2x, 1.7 s (0.6 s before its first track)"
+    assert _fallbacks(manifests[2]["fusion"]) == "2 (1.7 s, 0.6 s before the first track)"
+    assert _fallbacks(manifests[0]["fusion"]) == "1 (0.8 s)"
     assert _odometry_fallbacks([{"robot": "c", "control": "paper"}]) is None
 
 

@@ -25,7 +25,9 @@ def test_a_track_missing_for_half_a_second_while_driving_is_a_fallback_until_one
     assert [c for _, c in changes] == ["lost", "regained"]
     assert changes[0][0] == pytest.approx(1.43, abs=0.02)      # the last track (0.92 s) + 0.5 s
     assert changes[1][0] == pytest.approx(2.0, abs=0.02)
-    assert w.fallbacks == 1 and w.odometry_s == pytest.approx(0.57, abs=0.03)
+    # driven without a track from the last one (0.92 s) until one came back (2.0 s), not from 1.43 s
+    assert w.fallbacks == 1 and w.odometry_s == pytest.approx(1.08, abs=0.03)
+    assert w.as_dict(3.0)["odometry_before_first_track_s"] == 0.0   # it had tracks before
 
 
 def test_standing_is_no_fallback_and_no_track_at_all_is_one():
@@ -35,8 +37,35 @@ def test_standing_is_no_fallback_and_no_track_at_all_is_one():
     assert w.fallbacks == 0
     out = [w.update(2.0 + k * 0.01, None, moving=True) for k in range(100)]   # drives, never a track
     assert out.count("lost") == 1 and abs(out.index("lost") - 50) <= 1   # 0.5 s after it started driving
-    assert w.as_dict(3.0) == {"odometry_fallbacks": 1, "odometry_only_s": pytest.approx(0.5, abs=0.02),
+    # 1 s on odometry alone: from when it started to drive (2.0 s), all of it before any track
+    assert w.as_dict(3.0) == {"odometry_fallbacks": 1, "odometry_only_s": pytest.approx(1.0, abs=0.02),
+                              "odometry_before_first_track_s": pytest.approx(1.0, abs=0.02),
                               "on_odometry_at_end": True}
+
+
+def test_driving_before_the_first_track_is_timed_from_the_start_and_said_apart():
+    w = TrackWatch(lost_s=0.5)
+    for k in range(100):                      # stands 1 s
+        w.update(k * 0.01, None, moving=False)
+    changes = {}
+    for k in range(100, 400):                 # drives from 1.0 s; its first track comes at 1.8 s
+        now = k * 0.01
+        c = w.update(now, now - 0.05 if now >= 1.8 else None, moving=True)
+        if c:
+            changes[c] = round(now, 2)
+        if k == 250:                          # then none from 2.5 s to 3.4 s: a second fallback
+            break
+    for k in range(251, 400):
+        now = k * 0.01
+        c = w.update(now, 2.5 if now < 3.4 else now - 0.05, moving=True)
+        if c:
+            changes[c + "2"] = round(now, 2)
+    assert changes["lost"] == pytest.approx(1.5, abs=0.02) and changes["regained"] == pytest.approx(1.8, abs=0.02)
+    assert changes["lost2"] == pytest.approx(3.0, abs=0.02) and changes["regained2"] == pytest.approx(3.4, abs=0.02)
+    d = w.as_dict(4.0)
+    assert d["odometry_fallbacks"] == 2
+    assert d["odometry_only_s"] == pytest.approx(0.8 + 0.9, abs=0.03)          # 1.0-1.8 s and 2.5-3.4 s
+    assert d["odometry_before_first_track_s"] == pytest.approx(0.8, abs=0.03)  # the first only
 
 
 def test_the_mission_manifest_and_the_handle_say_the_closed_loop_fell_back(tmp_path):
