@@ -274,55 +274,73 @@ class TrackWatch:
     camera no events), so the clock starts when it moves: moving for more than ``lost_s`` with no
     track since is a *fallback* to odometry (counted in ``fallbacks``); a track coming back ends
     it. ``odometry_s`` times the driving without a track from its beginning (the last track, or
-    the moment it started to move), not from when ``lost_s`` ran out: that is how long the loop
-    really drove on odometry alone. The part of it before the mission's first track (a track is
-    named only once the robot moves) is ``before_first_track_s``. :meth:`update` returns
+    the moment it started to move) to the measurement time of the track that ended it, not from
+    when ``lost_s`` ran out, and without the time it stood meanwhile: how long the loop really
+    drove on odometry alone. The part of it before the mission's first track (a track is named
+    only once the robot moves) is ``before_first_track_s``. Tracks measured before ``start_t``
+    (the mission's start: an earlier mission's) are not this mission's. :meth:`update` returns
     ``"lost"`` or ``"regained"`` when the state changes, else None.
     """
 
-    def __init__(self, lost_s: float = 0.5):
+    def __init__(self, lost_s: float = 0.5, start_t: float | None = None):
         self.lost_s = lost_s
+        self.start_t = start_t
         self.on_odometry = False
         self.fallbacks = 0
         self.odometry_s = 0.0
         self.before_first_track_s = 0.0
         self.had_track = False                # a fresh track came during this mission
-        self._since: float | None = None      # when the driving without a track began
+        self._since: float | None = None      # when the current driving without a track began
         self._still_t: float | None = None    # last time the robot was commanded to stand
 
     def update(self, now: float, last_track_t: float | None, moving: bool) -> str | None:
+        if last_track_t is not None and self.start_t is not None and last_track_t < self.start_t:
+            last_track_t = None               # an earlier mission's track
         if not moving:
             self._still_t = now
         ref = max(t for t in (last_track_t, self._still_t) if t is not None) \
             if (last_track_t is not None or self._still_t is not None) else None
         if ref is None:
             self._still_t = ref = now
-        lost = moving and now - ref > self.lost_s
-        if lost and not self.on_odometry:
+        fresh = last_track_t is not None and now - last_track_t <= self.lost_s
+        if self.on_odometry:
+            if fresh:                         # driven without a track until this one was measured
+                self._close(min(now, last_track_t))
+                self.on_odometry, self.had_track = False, True
+                return "regained"
+            if not moving:                    # standing is not driving on odometry
+                self._close(now)
+            elif self._since is None:
+                self._since = now
+            return None
+        if moving and now - ref > self.lost_s:
             self.on_odometry, self._since = True, min(ref, now)
             self.fallbacks += 1
             return "lost"
-        fresh = last_track_t is not None and now - last_track_t <= self.lost_s
-        if self.on_odometry and fresh:
-            self.on_odometry = False
-            self.odometry_s += now - self._since
-            if not self.had_track:
-                self.before_first_track_s += now - self._since
-            self._since = None
-            self.had_track = True
-            return "regained"
         self.had_track = self.had_track or fresh
         return None
 
+    def _close(self, end: float) -> None:
+        """End the running stretch of driving without a track at ``end`` (never negative: a wall
+        clock stepped back counts nothing)."""
+        if self._since is not None:
+            dt = max(0.0, end - self._since)
+            self.odometry_s += dt
+            if not self.had_track:
+                self.before_first_track_s += dt
+        self._since = None
+
+    def _running(self, now: float) -> float:
+        return max(0.0, now - self._since) if self._since is not None else 0.0
+
     def odometry_time(self, now: float) -> float:
         """Seconds driven on odometry alone so far (the running fallback included)."""
-        return self.odometry_s + (now - self._since if self._since is not None else 0.0)
+        return self.odometry_s + self._running(now)
 
     def as_dict(self, now: float) -> dict:
-        running = now - self._since if self._since is not None and not self.had_track else 0.0
+        first = self.before_first_track_s + (0.0 if self.had_track else self._running(now))
         return {"odometry_fallbacks": self.fallbacks, "odometry_only_s": round(self.odometry_time(now), 3),
-                "odometry_before_first_track_s": round(self.before_first_track_s + running, 3),
-                "on_odometry_at_end": self.on_odometry}
+                "odometry_before_first_track_s": round(first, 3), "on_odometry_at_end": self.on_odometry}
 
 
 # --------------------------------------------------------------------------- mission runner

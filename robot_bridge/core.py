@@ -318,7 +318,9 @@ class RobotHandle:
                 self.link.allow_motors()
             mission_id = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime()) + f"-{cmd.mission}"
             self.runner = runner
-            self.track_watch = TrackWatch(self.opt.track_lost_s) if cmd.control == "closed" else None
+            # tracks from before the mission's start are an earlier mission's (the robot stands until then)
+            self.track_watch = (TrackWatch(self.opt.track_lost_s, start_t=max(time.time_ns(), cmd.start_ns or 0) / 1e9)
+                                if cmd.control == "closed" else None)
             self.mission_id = mission_id
             self.start_at_ns = cmd.start_ns
             self._trace_odo, self._trace_track = [], []

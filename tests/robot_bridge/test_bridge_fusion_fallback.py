@@ -25,8 +25,9 @@ def test_a_track_missing_for_half_a_second_while_driving_is_a_fallback_until_one
     assert [c for _, c in changes] == ["lost", "regained"]
     assert changes[0][0] == pytest.approx(1.43, abs=0.02)      # the last track (0.92 s) + 0.5 s
     assert changes[1][0] == pytest.approx(2.0, abs=0.02)
-    # driven without a track from the last one (0.92 s) until one came back (2.0 s), not from 1.43 s
-    assert w.fallbacks == 1 and w.odometry_s == pytest.approx(1.08, abs=0.03)
+    # driven without a track from the last one (measured at 0.92 s) to the next (measured at 1.92 s,
+    # arriving at 2.0 s), not from when the 0.5 s ran out (1.43 s)
+    assert w.fallbacks == 1 and w.odometry_s == pytest.approx(1.0, abs=0.03)
     assert w.as_dict(3.0)["odometry_before_first_track_s"] == 0.0   # it had tracks before
 
 
@@ -64,8 +65,9 @@ def test_driving_before_the_first_track_is_timed_from_the_start_and_said_apart()
     assert changes["lost2"] == pytest.approx(3.0, abs=0.02) and changes["regained2"] == pytest.approx(3.4, abs=0.02)
     d = w.as_dict(4.0)
     assert d["odometry_fallbacks"] == 2
-    assert d["odometry_only_s"] == pytest.approx(0.8 + 0.9, abs=0.03)          # 1.0-1.8 s and 2.5-3.4 s
-    assert d["odometry_before_first_track_s"] == pytest.approx(0.8, abs=0.03)  # the first only
+    # from 1.0 s to the first track's measurement (1.75 s), from 2.5 s to the next one's (3.35 s)
+    assert d["odometry_only_s"] == pytest.approx(0.75 + 0.85, abs=0.03)
+    assert d["odometry_before_first_track_s"] == pytest.approx(0.75, abs=0.03)  # the first only
 
 
 def test_the_mission_manifest_and_the_handle_say_the_closed_loop_fell_back(tmp_path):
@@ -109,3 +111,46 @@ def test_a_robot_being_stopped_is_no_fallback(tmp_path):
         for k in range(1, 100):               # the mission still asks to drive for 1 s, no track comes
             h._watch_track(t0 + k * 10_000_000, DRIVE)
         assert not h.on_odometry and h.odometry_fallbacks == 0
+
+
+def _drive(w, t0, t1, track_of, moving=True, dt=0.01):
+    """Steps from t0 to t1 (excluded); ``track_of(now)`` is the newest track's measurement time."""
+    changes = []
+    for k in range(round((t1 - t0) / dt)):
+        now = t0 + k * dt
+        c = w.update(now, track_of(now), moving if not callable(moving) else moving(now))
+        if c:
+            changes.append((round(now, 2), c))
+    return changes
+
+
+def test_an_earlier_missions_track_is_not_this_ones():
+    # the robot's last track is 60 s old (an earlier mission); this one drives from 160 s, its first track at 161 s
+    w = TrackWatch(lost_s=0.5, start_t=160.0)
+    _drive(w, 160.0, 162.0, lambda now: 100.0 if now < 161.0 else now - 0.05)
+    d = w.as_dict(162.0)
+    assert d["odometry_only_s"] == pytest.approx(1.0, abs=0.06)             # not 61 s
+    assert d["odometry_before_first_track_s"] == pytest.approx(1.0, abs=0.06)
+    w = TrackWatch(lost_s=0.5, start_t=160.0)                                # 0.3 s before it started
+    _drive(w, 160.0, 162.0, lambda now: 159.7 if now < 161.0 else now - 0.05)
+    assert w.as_dict(162.0)["odometry_before_first_track_s"] == pytest.approx(1.0, abs=0.06)
+
+
+def test_standing_during_a_fallback_is_not_driving_on_odometry():
+    w = TrackWatch(lost_s=0.5)
+    # tracks until 1.0 s, drives without one to 2.0 s, stands to 7.0 s, drives, a track measured at 7.5 s
+    _drive(w, 0.0, 9.0, lambda now: min(now, 1.0) if now < 7.5 else now,
+           moving=lambda now: not 2.0 <= now < 7.0)
+    assert w.fallbacks == 1 and w.odometry_s == pytest.approx(1.0 + 0.5, abs=0.03)
+
+
+def test_the_end_is_the_returning_tracks_measurement_time_and_a_clock_step_back_counts_nothing():
+    w = TrackWatch(lost_s=0.5)
+    # tracks arrive 0.3 s after they are measured; none measured between 1.0 and 2.0 s
+    _drive(w, 0.0, 3.0, lambda now: (now - 0.3) if not 1.3 <= now < 2.3 else 1.0)
+    assert w.odometry_s == pytest.approx(1.0, abs=0.03)                    # not 1.3 s
+    w = TrackWatch(lost_s=0.5)
+    _drive(w, 0.0, 2.0, lambda now: min(now, 0.5))                         # lost at 1.0 s, since 0.5 s
+    assert w.on_odometry
+    assert w.update(-1.0, -1.0, True) == "regained"                        # the wall clock stepped back 3 s
+    assert w.odometry_s == 0.0 and w.as_dict(-1.0)["odometry_only_s"] == 0.0
